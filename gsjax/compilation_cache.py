@@ -1,0 +1,31 @@
+"""JAX's persistent compilation cache, shared by the CLI, the tests and the experiments.
+
+Compiled XLA programs are stored under ``$GSJAX_CACHE_DIR`` (default: ``$XDG_CACHE_HOME/gsjax/jax`` or
+``~/.cache/gsjax/jax``), so a second run of the same shapes skips compilation.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import jax
+
+
+def cache_dir() -> Path:
+    """Directory of the persistent compilation cache (not created)."""
+    if "GSJAX_CACHE_DIR" in os.environ:
+        return Path(os.environ["GSJAX_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "gsjax" / "jax"
+
+
+def enable_compilation_cache() -> Path:
+    """Turn on JAX's persistent compilation cache for this process; returns its directory."""
+    path = cache_dir()
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    # Cache everything that took noticeable time to compile (the default skips programs under 1 s).
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return path

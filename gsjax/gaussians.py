@@ -1,0 +1,144 @@
+"""The Gaussian map: a fixed-capacity pytree of isotropic, view-independent 3D Gaussians (SplaTAM's parameters).
+
+Slots with ``active == False`` are free: they render nothing and receive no gradient. Densification writes into
+free slots; capacity is a static shape, grown by the caller (never silently).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Gaussians:
+    """Isotropic 3D Gaussians, N slots.
+
+    Attributes:
+      means: [N, 3] float32, world-frame centres (m).
+      log_scales: [N] float32, log of the standard deviation (m); scale = exp(log_scales).
+      logit_opacities: [N] float32; opacity = sigmoid(logit_opacities).
+      rgb: [N, 3] float32, colours used as stored (not clamped).
+      active: [N] bool, which slots hold a Gaussian.
+    """
+
+    means: jax.Array
+    log_scales: jax.Array
+    logit_opacities: jax.Array
+    rgb: jax.Array
+    active: jax.Array
+
+    @property
+    def capacity(self) -> int:
+        return self.means.shape[-2]
+
+    @property
+    def scales(self) -> jax.Array:
+        return jnp.exp(self.log_scales)
+
+    @property
+    def opacities(self) -> jax.Array:
+        return jax.nn.sigmoid(self.logit_opacities)
+
+    def num_active(self) -> jax.Array:
+        return jnp.sum(self.active.astype(jnp.int32), axis=-1)
+
+    @staticmethod
+    def empty(capacity: int) -> "Gaussians":
+        """A map with ``capacity`` free slots."""
+        return Gaussians(
+            means=jnp.zeros((capacity, 3), jnp.float32),
+            log_scales=jnp.zeros((capacity,), jnp.float32),
+            logit_opacities=jnp.zeros((capacity,), jnp.float32),
+            rgb=jnp.zeros((capacity, 3), jnp.float32),
+            active=jnp.zeros((capacity,), bool),
+        )
+
+    @staticmethod
+    def create(
+        means,
+        rgb,
+        scales,
+        opacities=0.5,
+        capacity: int | None = None,
+    ) -> "Gaussians":
+        """Gaussians from centres [n, 3] (m), colours [n, 3], scales (std-dev, m; [n] or scalar) and opacities
+        (in (0, 1); [n] or scalar), padded with free slots up to ``capacity`` (default n).
+        """
+        means = jnp.asarray(means, jnp.float32)
+        if means.ndim != 2 or means.shape[1] != 3:
+            raise ValueError(f"means must have shape [n, 3], got {means.shape}")
+        n = means.shape[0]
+        rgb = jnp.asarray(rgb, jnp.float32)
+        if rgb.shape != (n, 3):
+            raise ValueError(f"rgb must have shape [{n}, 3], got {rgb.shape}")
+        scales = jnp.broadcast_to(jnp.asarray(scales, jnp.float32), (n,))
+        opacities = jnp.broadcast_to(jnp.asarray(opacities, jnp.float32), (n,))
+        if not isinstance(scales, jax.core.Tracer) and not isinstance(opacities, jax.core.Tracer):
+            if not bool(jnp.all(scales > 0)):
+                raise ValueError("scales must be > 0")
+            if not bool(jnp.all((opacities > 0) & (opacities < 1))):
+                raise ValueError("opacities must lie in (0, 1)")
+        capacity = n if capacity is None else int(capacity)
+        if capacity < n:
+            raise ValueError(f"capacity {capacity} is smaller than the number of Gaussians {n}")
+        pad = capacity - n
+        return Gaussians(
+            means=jnp.pad(means, ((0, pad), (0, 0))),
+            log_scales=jnp.pad(jnp.log(scales), (0, pad)),
+            logit_opacities=jnp.pad(jnp.log(opacities) - jnp.log1p(-opacities), (0, pad)),
+            rgb=jnp.pad(rgb, ((0, pad), (0, 0))),
+            active=jnp.arange(capacity) < n,
+        )
+
+    def grow(self, capacity: int) -> "Gaussians":
+        """The same map with more free slots appended (for capacity growth between scan chunks)."""
+        pad = capacity - self.capacity
+        if pad < 0:
+            raise ValueError(f"cannot shrink capacity from {self.capacity} to {capacity}")
+        return Gaussians(
+            means=jnp.pad(self.means, ((0, pad), (0, 0))),
+            log_scales=jnp.pad(self.log_scales, (0, pad)),
+            logit_opacities=jnp.pad(self.logit_opacities, (0, pad)),
+            rgb=jnp.pad(self.rgb, ((0, pad), (0, 0))),
+            active=jnp.pad(self.active, (0, pad)),
+        )
+
+
+def check_gaussians(gaussians: Gaussians, name: str = "gaussians") -> None:
+    """Shape/dtype checks (always) and finiteness of active slots (only for concrete arrays).
+
+    Raises:
+      ValueError naming the offending field.
+    """
+    if not isinstance(gaussians, Gaussians):
+        raise ValueError(f"{name} must be a gsjax.gaussians.Gaussians, got {type(gaussians).__name__}")
+    means = gaussians.means
+    if means.ndim != 2 or means.shape[-1] != 3:
+        raise ValueError(f"{name}.means must have shape [N, 3], got {tuple(means.shape)}")
+    n = means.shape[0]
+    expected = {"log_scales": (n,), "logit_opacities": (n,), "rgb": (n, 3), "active": (n,)}
+    for field, shape in expected.items():
+        value = getattr(gaussians, field)
+        if tuple(value.shape) != shape:
+            raise ValueError(f"{name}.{field} must have shape {list(shape)}, got {list(value.shape)}")
+    for field in ("means", "log_scales", "logit_opacities", "rgb"):
+        if not jnp.issubdtype(getattr(gaussians, field).dtype, jnp.floating):
+            raise ValueError(f"{name}.{field} must be floating point, got {getattr(gaussians, field).dtype}")
+    if gaussians.active.dtype != jnp.bool_:
+        raise ValueError(f"{name}.active must be bool, got {gaussians.active.dtype}")
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(gaussians)):
+        return  # value checks need concrete arrays (skipped under an outer jit)
+    active = np.asarray(gaussians.active)
+    for field in ("means", "log_scales", "logit_opacities", "rgb"):
+        value = np.asarray(getattr(gaussians, field))
+        bad = ~np.isfinite(value.reshape(n, -1)).all(axis=1) & active
+        if bad.any():
+            raise ValueError(
+                f"{name}.{field} has non-finite values in {int(bad.sum())} active slot(s), first at index "
+                f"{int(np.argmax(bad))}"
+            )
