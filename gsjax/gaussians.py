@@ -142,3 +142,43 @@ def check_gaussians(gaussians: Gaussians, name: str = "gaussians") -> None:
                 f"{name}.{field} has non-finite values in {int(bad.sum())} active slot(s), first at index "
                 f"{int(np.argmax(bad))}"
             )
+
+
+def gaussians_from_rgbd(
+    color: jax.Array,
+    depth: jax.Array,
+    intrinsics,
+    c2w: jax.Array,
+    mask: jax.Array | None = None,
+    opacity: float = 0.5,
+) -> Gaussians:
+    """One Gaussian per valid depth pixel, SplaTAM's initialisation (method_spec A.4, A.7).
+
+    Args:
+      color: [H, W, 3] in [0, 1]; depth: [H, W] (m, 0 = invalid); intrinsics: :class:`gsjax.camera.Intrinsics`;
+      c2w: [4, 4] camera-to-world pose; mask: optional [H, W] bool restricting the pixels; opacity: initial
+        opacity (SplaTAM: 0.5, i.e. logit 0).
+
+    Returns:
+      Gaussians with H*W slots in row-major pixel order; slots of masked-out or invalid pixels are inactive.
+      Centres are back-projected pixel centres (so each renders centred on its pixel); the isotropic scale is one
+      pixel's footprint at that depth, ``z / ((fx + fy) / 2)``.
+    """
+    from gsjax.camera import backproject
+
+    height, width = depth.shape
+    points = backproject(depth, intrinsics).reshape(-1, 3)
+    points = points @ c2w[:3, :3].T + c2w[:3, 3]
+    z = depth.reshape(-1)
+    valid = z > 0
+    if mask is not None:
+        valid &= mask.reshape(-1)
+    scale = jnp.where(valid, z, 1.0) / (0.5 * (intrinsics.fx + intrinsics.fy))
+    logit = jnp.log(opacity) - jnp.log1p(-opacity)
+    return Gaussians(
+        means=points.astype(jnp.float32),
+        log_scales=jnp.log(scale).astype(jnp.float32),
+        logit_opacities=jnp.full((height * width,), logit, jnp.float32),
+        rgb=color.reshape(-1, 3).astype(jnp.float32),
+        active=valid,
+    )

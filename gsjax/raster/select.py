@@ -1,0 +1,128 @@
+"""Per-pixel selection of the first K contributing Gaussians from the tile lists (indices only, no gradient).
+
+Each pixel walks its tile's depth-sorted list with SplaTAM's rules: a candidate contributes when
+``alpha >= 1/255``; the walk stops at the first contributor whose addition would leave ``T (1 - alpha) < 1e-4``
+(that one is not added). Because transmittance only decreases, a candidate is *kept* exactly when it contributes
+and the transmittance after it is still >= 1e-4.
+
+The walk is a ``lax.scan`` over the M list entries, vectorised over all pixels of all tiles (on XLA:CPU a scan
+over the list axis is several times faster than cumulative sums along it). It emits one "kept" bit per (entry,
+pixel); the bits are packed into 32-bit words and the first K set bits of every pixel are extracted with
+lowest-set-bit arithmetic, which is far cheaper on CPU than a scatter-based compaction.
+
+Truncation is measured, never silent: a pixel with more than K kept contributors, or whose walk reached the end
+of an incomplete tile list (capacity overflow) without stopping, is flagged, with the transmittance at the cut.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from gsjax.raster.binning import TileGrid, TileLists
+from gsjax.raster.project import ALPHA_MIN, Projected, gaussian_alpha
+
+T_MIN = 1e-4  # the walk stops before transmittance would fall below this
+_LOG_T_MIN = math.log(T_MIN)
+_WORD = 32
+
+
+class Selection(NamedTuple):
+    """First-K contributors of every pixel, P = num_tiles * tile_size^2 pixels in tile-major order.
+
+    Attributes:
+      ids: [P, K] int32 Gaussian indices in depth order; -1 marks an empty slot.
+      num_kept: [P] int32 contributors before the stop rule (counted through the whole tile list, can exceed K).
+      truncated: [P] bool, the pixel's walk was cut by K or by an incomplete tile list.
+      residual: [P] float32 transmittance left where the walk was cut (0 when not truncated).
+    """
+
+    ids: jax.Array
+    num_kept: jax.Array
+    truncated: jax.Array
+    residual: jax.Array
+
+
+def pack_bits(bits: jax.Array) -> jax.Array:
+    """[M, ...] bool with M a multiple of 32 -> [M // 32, ...] uint32, entry m at bit m % 32 of word m // 32."""
+    words = bits.reshape((bits.shape[0] // _WORD, _WORD) + bits.shape[1:]).astype(jnp.uint32)
+    shifts = jnp.arange(_WORD, dtype=jnp.uint32).reshape((1, _WORD) + (1,) * (bits.ndim - 1))
+    return jnp.sum(words << shifts, axis=1, dtype=jnp.uint32)
+
+
+def first_set_bits(words: jax.Array, k: int) -> jax.Array:
+    """Positions of the first ``k`` set bits of bit strings packed as words [W, P] -> [k, P] int32 (-1 if fewer)."""
+    num_words = words.shape[0]
+    word_index = jnp.arange(num_words)[:, None]
+
+    def pop_lowest(words, _):
+        nonzero = words != 0
+        first = jnp.argmax(nonzero, axis=0)
+        word = jnp.take_along_axis(words, first[None], axis=0)[0]
+        lowest = word & (~word + jnp.uint32(1))
+        bit = (_WORD - 1) - jax.lax.clz(lowest).astype(jnp.int32)
+        position = jnp.where(jnp.any(nonzero, axis=0), first * _WORD + bit, -1)
+        words = jnp.where(word_index == first[None], words & (words - jnp.uint32(1)), words)
+        return words, position
+
+    return jax.lax.scan(pop_lowest, words, None, length=k)[1]
+
+
+def _walk(features, ids, pixels, incomplete, k):
+    """Tiles [b]: features [b, M, 6] = (u, v, a, b, c, opacity), ids [b, M], pixels [b, T^2, 2], incomplete [b]."""
+    shape = pixels.shape[:2]
+
+    def step(carry, f):
+        log_t, count, log_t_at_k, terminated = carry
+        dx = pixels[..., 0] - f[:, None, 0]
+        dy = pixels[..., 1] - f[:, None, 1]
+        alpha = gaussian_alpha(dx, dy, f[:, None, 2:5], f[:, None, 5])
+        contributes = alpha >= ALPHA_MIN  # empty entries have opacity 0
+        log_t = log_t + jnp.where(contributes, jnp.log1p(-alpha), 0.0)
+        keep = contributes & (log_t >= _LOG_T_MIN)
+        count = count + keep
+        log_t_at_k = jnp.where(keep & (count <= k), log_t, log_t_at_k)
+        return (log_t, count, log_t_at_k, terminated | (contributes & ~keep)), keep
+
+    zeros = jnp.zeros(shape, jnp.float32)
+    init = (zeros, jnp.zeros(shape, jnp.int32), zeros, jnp.zeros(shape, bool))
+    (log_t, count, log_t_at_k, terminated), keep = jax.lax.scan(step, init, jnp.moveaxis(features, 1, 0))
+
+    local = first_set_bits(pack_bits(keep.reshape(keep.shape[0], -1)), k)  # [k, b * T^2]
+    local = jnp.moveaxis(local.reshape((k,) + shape), 0, -1)  # [b, T^2, k]
+    selected = jnp.where(local >= 0, jnp.take_along_axis(ids[:, None, :], jnp.maximum(local, 0), axis=-1), -1)
+
+    out_of_k = count > k
+    cut_by_list = incomplete[:, None] & ~terminated & ~out_of_k
+    residual = jnp.where(out_of_k, jnp.exp(log_t_at_k), jnp.where(cut_by_list, jnp.exp(log_t), 0.0))
+    return selected, count, out_of_k | cut_by_list, residual
+
+
+def select_contributors(
+    projected: Projected, tiles: TileLists, grid: TileGrid, k: int, tiles_per_batch: int
+) -> Selection:
+    """First ``k`` contributors of every pixel of ``grid`` (tiles processed ``tiles_per_batch`` at a time)."""
+    table = jax.lax.stop_gradient(
+        jnp.concatenate([projected.uv, projected.conic, projected.opacity[:, None]], axis=-1)
+    )
+    ids = tiles.ids
+    pad = -ids.shape[1] % _WORD
+    ids = jnp.pad(ids, ((0, 0), (0, pad)), constant_values=-1)
+    features = jnp.where((ids >= 0)[..., None], table[jnp.maximum(ids, 0)], 0.0)  # [B, M, 6]
+    args = (features, ids, grid.pixel_coords(), tiles.incomplete())
+    batch = min(tiles_per_batch, grid.num_tiles)
+    if batch == grid.num_tiles:
+        outputs = _walk(*args, k=k)
+    else:
+        # Bound memory on large images: batches of tiles, padded to a whole number of batches.
+        num_batches = -(-grid.num_tiles // batch)
+        fill = num_batches * batch - grid.num_tiles
+        padded = jax.tree_util.tree_map(lambda x: jnp.pad(x, [(0, fill)] + [(0, 0)] * (x.ndim - 1)), args)
+        batched = jax.tree_util.tree_map(lambda x: x.reshape((num_batches, batch) + x.shape[1:]), padded)
+        outputs = jax.lax.map(lambda a: _walk(*a, k=k), batched)
+        outputs = jax.tree_util.tree_map(lambda x: x.reshape((-1,) + x.shape[2:])[: grid.num_tiles], outputs)
+    flat = lambda x: x.reshape((grid.num_tiles * grid.pixels_per_tile,) + x.shape[2:])  # noqa: E731
+    return Selection(*(flat(x) for x in outputs))
