@@ -1,4 +1,4 @@
-"""Trajectory metrics: Umeyama/Horn alignment, both ATE variants (vs evo and vs SplaTAM's own code), RPE, association."""
+"""Trajectory metrics: Umeyama/Horn alignment, both ATE variants (vs evo and SplaTAM's code), RPE, association."""
 
 from __future__ import annotations
 
