@@ -5,8 +5,11 @@ from __future__ import annotations
 import copy
 import json
 
+import evo.core.metrics as evo_metrics  # evo is a pinned test dependency (pyproject [test])
 import numpy as np
 import pytest
+from evo.core import sync
+from evo.core.trajectory import PoseTrajectory3D
 
 from gsjax.eval.association import associate_timestamps
 from gsjax.eval.trajectory import (
@@ -20,9 +23,6 @@ from gsjax.eval.trajectory import (
     umeyama_alignment,
 )
 
-evo_metrics = pytest.importorskip("evo.core.metrics")
-from evo.core import sync  # noqa: E402
-from evo.core.trajectory import PoseTrajectory3D  # noqa: E402
 
 
 def random_rotation(rng, n=None):

@@ -237,7 +237,7 @@ def rpe(est_c2w, gt_c2w, valid=None) -> RpeResult:
     For each pair (i, i+1) where both frames are used, ``E = (Q_i^-1 Q_{i+1})^-1 (P_i^-1 P_{i+1})`` with Q the GT
     and P the estimate; the errors are ``|trans(E)|`` (m) and ``angle(E)`` (deg). Pairs spanning a skipped
     frame are left out (their motion is not one frame's). RPE does not depend on a rigid alignment; for a scale
-    alignment, pass the aligned estimate (:meth:`Alignment.apply_c2w`).
+    alignment, pass the aligned estimate (:meth:`Alignment.apply_c2w`). Needs at least 3 used frames, like ATE.
     """
     est, gt, used = _frames_used(est_c2w, gt_c2w, valid)
     i = np.flatnonzero(used[:-1] & used[1:])
