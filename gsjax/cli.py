@@ -30,10 +30,69 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+def _add_eval(sub) -> None:
+    p = sub.add_parser("eval", help="trajectory metrics (ATE, RPE) of an estimate against ground truth")
+    p.add_argument("--est", type=Path, required=True, help="estimated trajectory, TUM format (camera-to-world)")
+    p.add_argument("--gt", type=Path, required=True, help="ground-truth trajectory, TUM format")
+    p.add_argument("--out", type=Path, default=None, help="metrics JSON (default: <est without suffix>.metrics.json)")
+    p.add_argument("--scale", action="store_true", help="also align the scale (similarity / Umeyama)")
+    p.add_argument("--max-dt", type=float, default=0.02, help="timestamp association tolerance in s (default 0.02)")
+    p.add_argument("--plots", type=Path, default=None, help="also write trajectory and error plots into this directory")
+    p.set_defaults(func=_cmd_eval)
+
+
+def _cmd_eval(args) -> int:
+    import numpy as np
+
+    from gsjax.eval.association import associate_timestamps
+    from gsjax.eval.trajectory import ate_rmse_c2w, evaluate_trajectory
+    from gsjax.io.atomic import atomic_write_json
+    from gsjax.io.trajectory import read_tum_trajectory
+
+    if args.gt.is_dir():
+        raise UserError(f"--gt {args.gt} is a directory: --gt DIR needs --dataset; not yet supported (give a TUM file)")
+    for flag, path in (("--est", args.est), ("--gt", args.gt)):
+        if not path.is_file():
+            raise UserError(f"{flag} {path}: no such file")
+    if not (np.isfinite(args.max_dt) and args.max_dt >= 0):
+        raise UserError(f"--max-dt must be a number >= 0, got {args.max_dt}")
+    est_t, est_c2w = read_tum_trajectory(args.est)
+    gt_t, gt_c2w = read_tum_trajectory(args.gt)
+    metrics = evaluate_trajectory(est_t, est_c2w, gt_t, gt_c2w, max_dt=args.max_dt, with_scale=args.scale)
+    metrics = {"est": str(args.est), "gt": str(args.gt), **metrics}
+    out = args.out if args.out is not None else args.est.with_suffix(".metrics.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out, metrics)
+
+    for key, value in metrics.items():
+        if isinstance(value, float):
+            print(f"{key:26s} {value:.6g}")
+        elif isinstance(value, (int, bool)) or value is None:
+            print(f"{key:26s} {value}")
+    print(f"wrote {out}")
+
+    if args.plots is not None:
+        from gsjax.io.plots import plot_errors_over_time, plot_trajectory_top_view
+
+        est_idx, gt_idx = associate_timestamps(est_t, gt_t, args.max_dt)
+        ate = ate_rmse_c2w(est_c2w[est_idx], gt_c2w[gt_idx], with_scale=args.scale)
+        est_aligned = ate.alignment.apply_points(est_c2w[est_idx][ate.used, :3, 3])
+        args.plots.mkdir(parents=True, exist_ok=True)
+        title = f"ATE RMSE (c2w) {100 * ate.value_m:.2f} cm"
+        for path in (
+            plot_trajectory_top_view(args.plots / "trajectory_top.png", est_aligned, gt_c2w[gt_idx][ate.used, :3, 3],
+                                     title=title),
+            plot_errors_over_time(args.plots / "ate_over_time.png", est_t[est_idx][ate.used],
+                                  {"ATE (cm)": 100 * ate.errors_m}, ylabel="ATE (cm)", title=title),
+        ):
+            print(f"wrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gsjax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_demo,):
+    for add in (_add_demo, _add_eval):
         add(sub)
     return parser
 

@@ -1,0 +1,45 @@
+"""Evaluation metrics: trajectory errors (numpy float64) and image/depth metrics (pure JAX).
+
+See :mod:`gsjax.eval.trajectory` for the two ATE variants (true RMSE of camera centres vs SplaTAM's mean of
+w2c translations) and :mod:`gsjax.eval.image` for PSNR / SSIM / MS-SSIM / depth L1 (no LPIPS).
+"""
+
+from gsjax.eval.association import associate_timestamps
+from gsjax.eval.image import (
+    depth_l1,
+    ms_ssim,
+    psnr,
+    psnr_splatam,
+    render_metrics_splatam,
+    ssim,
+    ssim_splatam,
+)
+from gsjax.eval.trajectory import (
+    Alignment,
+    AteResult,
+    RpeResult,
+    ate_rmse_c2w,
+    ate_splatam_mean_w2c,
+    evaluate_trajectory,
+    rpe,
+    umeyama_alignment,
+)
+
+__all__ = [
+    "Alignment",
+    "AteResult",
+    "RpeResult",
+    "associate_timestamps",
+    "ate_rmse_c2w",
+    "ate_splatam_mean_w2c",
+    "depth_l1",
+    "evaluate_trajectory",
+    "ms_ssim",
+    "psnr",
+    "psnr_splatam",
+    "render_metrics_splatam",
+    "rpe",
+    "ssim",
+    "ssim_splatam",
+    "umeyama_alignment",
+]

@@ -1,0 +1,336 @@
+"""Trajectory metrics: ATE (two variants), RPE, timestamp association. numpy float64, run at the edges.
+
+Inputs are **camera-to-world** poses ``c2w [N, 4, 4]`` (metres), as in TUM trajectory files and evo; gsjax's
+internal world-to-camera poses are inverted by the caller. Two absolute-trajectory errors are provided because
+the literature uses both under the same name ("ATE RMSE", method_spec B.1-B.2):
+
+* :func:`ate_rmse_c2w`: the true RMSE of **camera centres** after Horn/Umeyama alignment of the estimate onto
+  the ground truth (rigid, or similarity with ``with_scale``). This is what ``evo_ape tum gt est --align``
+  reports and what the CB-KNN authors' final evaluation prints.
+* :func:`ate_splatam_mean_w2c`: SplaTAM's number: the **mean** (not RMS) distance between the translation
+  columns of the **world-to-camera** matrices after rigid Horn alignment. Compare with SplaTAM's published
+  tables only through this one.
+
+Ground-truth poses that are not finite, or that a ``valid`` mask excludes, are skipped and counted; a
+non-finite *estimated* pose at a frame with valid ground truth is an error (a diverged run must not be scored
+on its surviving frames).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+
+from gsjax.eval.association import associate_timestamps
+
+# Fewest frames for which a 3D rigid alignment is determined (non-collinear points).
+MIN_FRAMES = 3
+
+
+@dataclasses.dataclass(frozen=True)
+class Alignment:
+    """Similarity transform ``x -> scale * rotation @ x + translation`` (float64; metres)."""
+
+    rotation: np.ndarray  # [3, 3]
+    translation: np.ndarray  # [3]
+    scale: float = 1.0
+
+    def apply_points(self, points: np.ndarray) -> np.ndarray:
+        """Points [..., 3] -> transformed points [..., 3]."""
+        return self.scale * np.asarray(points, np.float64) @ self.rotation.T + self.translation
+
+    def apply_c2w(self, c2w: np.ndarray) -> np.ndarray:
+        """Camera-to-world poses [..., 4, 4] expressed in the aligned world: ``R_i -> R R_i``, centres mapped as
+        points (the scale acts on positions only, so the result stays a rigid transform)."""
+        out = np.array(c2w, np.float64, copy=True)
+        out[..., :3, :3] = self.rotation @ out[..., :3, :3]
+        out[..., :3, 3] = self.apply_points(out[..., :3, 3])
+        return out
+
+    def to_json(self) -> dict:
+        return {
+            "rotation": self.rotation.tolist(),
+            "translation_m": self.translation.tolist(),
+            "scale": float(self.scale),
+        }
+
+
+class AteResult(NamedTuple):
+    """An absolute trajectory error.
+
+    value_m: the statistic (RMSE for :func:`ate_rmse_c2w`, mean for :func:`ate_splatam_mean_w2c`), metres.
+    errors_m: [n_used] per-frame distances after alignment (m), in frame order.
+    alignment: the transform applied to the estimate's positions.
+    used: [N] bool, frames that entered the metric.
+    """
+
+    value_m: float
+    errors_m: np.ndarray
+    alignment: Alignment
+    used: np.ndarray
+
+
+class RpeResult(NamedTuple):
+    """Relative pose errors between consecutive frames (pairs (i, i+1) with both frames valid).
+
+    trans_errors_m: [P] translation error of each pair's relative motion (m).
+    rot_errors_deg: [P] rotation angle of each pair's relative-motion error (deg).
+    pairs: [P, 2] int frame indices (i, i+1).
+    """
+
+    trans_errors_m: np.ndarray
+    rot_errors_deg: np.ndarray
+    pairs: np.ndarray
+
+    @property
+    def trans_rmse_m(self) -> float:
+        return _rmse(self.trans_errors_m)
+
+    @property
+    def trans_mean_m(self) -> float:
+        return _mean(self.trans_errors_m)
+
+    @property
+    def rot_rmse_deg(self) -> float:
+        return _rmse(self.rot_errors_deg)
+
+    @property
+    def rot_mean_deg(self) -> float:
+        return _mean(self.rot_errors_deg)
+
+
+def _rmse(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+
+
+def _mean(x: np.ndarray) -> float:
+    return float(np.mean(x)) if x.size else float("nan")
+
+
+# ---------------------------------------------------------------------------------------------- geometry
+
+
+def invert_rigid(transform: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms [..., 4, 4] via ``R^T`` (float64)."""
+    transform = np.asarray(transform, np.float64)
+    rot_t = np.swapaxes(transform[..., :3, :3], -1, -2)
+    out = np.zeros_like(transform)
+    out[..., :3, :3] = rot_t
+    out[..., :3, 3] = -(rot_t @ transform[..., :3, 3, None])[..., 0]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def rotation_angle_rad(rotation: np.ndarray) -> np.ndarray:
+    """Rotation angle (rad, in [0, pi]) of rotation matrices [..., 3, 3]; accurate at small angles (atan2 of the
+    sine from the skew part and the cosine from the trace)."""
+    r = np.asarray(rotation, np.float64)
+    cos = 0.5 * (r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1.0)
+    skew = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1)
+    sin = 0.5 * np.linalg.norm(skew, axis=-1)
+    return np.arctan2(sin, cos)
+
+
+def umeyama_alignment(source: np.ndarray, target: np.ndarray, with_scale: bool = False) -> Alignment:
+    """Least-squares similarity (or rigid) transform mapping ``source`` [n, 3] onto ``target`` [n, 3].
+
+    Minimises ``sum_i |target_i - (s R source_i + t)|^2`` (Umeyama, PAMI 1991, eqs. 34-43; for ``s = 1`` this is
+    Horn's closed form): SVD of the cross-covariance with the reflection fix ``det(R) = +1``.
+    """
+    source = np.asarray(source, np.float64)
+    target = np.asarray(target, np.float64)
+    if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3:
+        raise ValueError(f"source and target must both have shape [n, 3], got {source.shape} and {target.shape}")
+    mean_s, mean_t = source.mean(axis=0), target.mean(axis=0)
+    xs, xt = source - mean_s, target - mean_t
+    cov = xt.T @ xs / source.shape[0]
+    u, d, vt = np.linalg.svd(cov)
+    sign = np.ones(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        sign[2] = -1.0
+    rotation = (u * sign) @ vt
+    scale = 1.0
+    if with_scale:
+        var_s = np.mean(np.sum(xs * xs, axis=1))
+        if not var_s > 0:
+            raise ValueError("cannot estimate a scale: all source points coincide")
+        scale = float(np.sum(d * sign) / var_s)
+    return Alignment(rotation=rotation, translation=mean_t - scale * rotation @ mean_s, scale=scale)
+
+
+# ------------------------------------------------------------------------------------------- validity
+
+
+def _as_poses(c2w: np.ndarray, name: str) -> np.ndarray:
+    c2w = np.asarray(c2w, np.float64)
+    if c2w.ndim != 3 or c2w.shape[1:] != (4, 4):
+        raise ValueError(f"{name} must have shape [N, 4, 4], got {list(c2w.shape)}")
+    return c2w
+
+
+def _frames_used(est_c2w, gt_c2w, valid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(est, gt, used): float64 poses and the mask of frames with finite, valid GT; checks the estimate there."""
+    est = _as_poses(est_c2w, "est_c2w")
+    gt = _as_poses(gt_c2w, "gt_c2w")
+    if est.shape != gt.shape:
+        raise ValueError(f"est_c2w and gt_c2w must have the same number of frames, got {len(est)} and {len(gt)}")
+    used = np.isfinite(gt).all(axis=(1, 2))
+    if valid is not None:
+        valid = np.asarray(valid, bool)
+        if valid.shape != used.shape:
+            raise ValueError(f"valid must have shape [{len(gt)}], got {list(valid.shape)}")
+        used &= valid
+    bad_est = used & ~np.isfinite(est).all(axis=(1, 2))
+    if bad_est.any():
+        raise ValueError(
+            f"the estimated trajectory has {int(bad_est.sum())} non-finite pose(s) at frames with valid ground truth,"
+            f" first at frame {int(np.argmax(bad_est))}"
+        )
+    if used.sum() < MIN_FRAMES:
+        raise ValueError(f"need at least {MIN_FRAMES} frames with valid ground truth, got {int(used.sum())}")
+    return est, gt, used
+
+
+# ----------------------------------------------------------------------------------------------- metrics
+
+
+def ate_rmse_c2w(est_c2w, gt_c2w, valid=None, with_scale: bool = False) -> AteResult:
+    """ATE as evo reports it: RMSE (m) of camera centres after aligning the estimate onto the ground truth.
+
+    Args:
+      est_c2w, gt_c2w: [N, 4, 4] camera-to-world poses (m), frame i of one matching frame i of the other.
+      valid: optional [N] bool; frames with False, or with non-finite GT, are skipped.
+      with_scale: similarity (Umeyama) instead of rigid (Horn) alignment, for scale-free estimates.
+    """
+    est, gt, used = _frames_used(est_c2w, gt_c2w, valid)
+    est_c, gt_c = est[used, :3, 3], gt[used, :3, 3]
+    alignment = umeyama_alignment(est_c, gt_c, with_scale=with_scale)
+    errors = np.linalg.norm(alignment.apply_points(est_c) - gt_c, axis=1)
+    return AteResult(_rmse(errors), errors, alignment, used)
+
+
+def ate_splatam_mean_w2c(est_c2w, gt_c2w, valid=None) -> AteResult:
+    """SplaTAM's "ATE RMSE" (method_spec B.1): the MEAN distance (m) between w2c translation columns after rigid
+    Horn alignment. Not an RMSE and not camera centres; use it only to compare with SplaTAM's published numbers.
+
+    w2c translations (``-R^T c``) depend on the choice of world frame, so, as SplaTAM's loader does for the GT
+    and as its estimate is by construction, both trajectories are first re-expressed relative to their first
+    used frame (``c2w_0^{-1} c2w_i``). SplaTAM aligns the GT onto the estimate; for a rigid alignment the residual
+    distances are the same either way, and here (as in :func:`ate_rmse_c2w`) the estimate is aligned onto the GT.
+
+    Args: as :func:`ate_rmse_c2w` (no scale: SplaTAM has none).
+    """
+    est, gt, used = _frames_used(est_c2w, gt_c2w, valid)
+    est, gt = est[used], gt[used]
+    est_t = invert_rigid(invert_rigid(est[0]) @ est)[:, :3, 3]
+    gt_t = invert_rigid(invert_rigid(gt[0]) @ gt)[:, :3, 3]
+    alignment = umeyama_alignment(est_t, gt_t, with_scale=False)
+    errors = np.linalg.norm(alignment.apply_points(est_t) - gt_t, axis=1)
+    return AteResult(_mean(errors), errors, alignment, used)
+
+
+def rpe(est_c2w, gt_c2w, valid=None) -> RpeResult:
+    """Relative pose error over consecutive frames (evo's RPE with delta = 1 frame).
+
+    For each pair (i, i+1) where both frames are used, ``E = (Q_i^-1 Q_{i+1})^-1 (P_i^-1 P_{i+1})`` with Q the GT
+    and P the estimate; the errors are ``|trans(E)|`` (m) and ``angle(E)`` (deg). Pairs spanning a skipped
+    frame are left out (their motion is not one frame's). RPE does not depend on a rigid alignment; for a scale
+    alignment, pass the aligned estimate (:meth:`Alignment.apply_c2w`). Needs at least 3 used frames, like ATE.
+    """
+    est, gt, used = _frames_used(est_c2w, gt_c2w, valid)
+    i = np.flatnonzero(used[:-1] & used[1:])
+    rel_gt = invert_rigid(gt[i]) @ gt[i + 1]
+    rel_est = invert_rigid(est[i]) @ est[i + 1]
+    err = invert_rigid(rel_gt) @ rel_est
+    return RpeResult(
+        trans_errors_m=np.linalg.norm(err[:, :3, 3], axis=1),
+        rot_errors_deg=np.degrees(rotation_angle_rad(err[:, :3, :3])),
+        pairs=np.stack([i, i + 1], axis=1),
+    )
+
+
+# ---------------------------------------------------------------------------------------------- report
+
+#: What each trajectory key means; written into ``evaluate_trajectory``'s result so a metrics file explains itself.
+DEFINITIONS = {
+    "ate_rmse_c2w": "RMSE of camera centres (c2w) after Horn/Umeyama alignment of the estimate onto the GT "
+    "(evo_ape --align; with --scale also scale)",
+    "ate_mean_c2w": "mean of the same per-frame camera-centre errors",
+    "ate_splatam_mean_w2c": "SplaTAM's 'ATE RMSE': MEAN error of w2c translations after rigid Horn alignment, both "
+    "trajectories relative to their first frame (always rigid)",
+    "rpe": "relative pose error between consecutive evaluated frames (delta = 1 frame), translation and rotation",
+}
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def evaluate_trajectory(
+    est_timestamps,
+    est_c2w,
+    gt_timestamps,
+    gt_c2w,
+    gt_valid=None,
+    max_dt: float = 0.02,
+    with_scale: bool = False,
+) -> dict:
+    """All trajectory metrics of an estimate against ground truth, as a JSON-friendly dict.
+
+    Poses are associated by timestamp (:func:`gsjax.eval.association.associate_timestamps`), GT poses that are
+    not finite or have ``gt_valid`` False are skipped and counted, then ATE (both variants, see the module
+    docstring) and RPE are computed on the remaining frames.
+
+    Args:
+      est_timestamps: [N] s; est_c2w: [N, 4, 4] camera-to-world (m).
+      gt_timestamps: [M] s; gt_c2w: [M, 4, 4] camera-to-world (m); gt_valid: optional [M] bool.
+      max_dt: association tolerance (s).
+      with_scale: similarity alignment for ``ate_*_c2w`` and RPE (the SplaTAM variant stays rigid).
+
+    Returns:
+      dict with float metrics (units in the key: ``_m``, ``_cm``, ``_deg``; None where undefined), counts
+      (``num_*``), the alignment and ``definitions``.
+    """
+    est_c2w = _as_poses(est_c2w, "est_c2w")
+    gt_c2w = _as_poses(gt_c2w, "gt_c2w")
+    for name, stamps, poses in (("est", est_timestamps, est_c2w), ("gt", gt_timestamps, gt_c2w)):
+        if np.shape(stamps) != (len(poses),):
+            raise ValueError(f"{name}_timestamps must have shape [{len(poses)}], got {list(np.shape(stamps))}")
+    valid = np.isfinite(gt_c2w).all(axis=(1, 2))
+    if gt_valid is not None:
+        if np.shape(gt_valid) != (len(gt_c2w),):
+            raise ValueError(f"gt_valid must have shape [{len(gt_c2w)}], got {list(np.shape(gt_valid))}")
+        valid &= np.asarray(gt_valid, bool)
+    est_idx, gt_idx = associate_timestamps(est_timestamps, gt_timestamps, max_dt)
+    if len(est_idx) == 0:
+        raise ValueError(f"no estimated pose has a ground-truth timestamp within max_dt = {max_dt} s")
+    est, gt, used = est_c2w[est_idx], gt_c2w[gt_idx], valid[gt_idx]
+
+    ate = ate_rmse_c2w(est, gt, used, with_scale=with_scale)
+    ate_splatam = ate_splatam_mean_w2c(est, gt, used)
+    rel = rpe(ate.alignment.apply_c2w(est), gt, used)
+    return {
+        "ate_rmse_c2w_m": ate.value_m,
+        "ate_rmse_c2w_cm": 100.0 * ate.value_m,
+        "ate_mean_c2w_m": _mean(ate.errors_m),
+        "ate_max_c2w_m": float(np.max(ate.errors_m)),
+        "ate_splatam_mean_w2c_m": ate_splatam.value_m,
+        "ate_splatam_mean_w2c_cm": 100.0 * ate_splatam.value_m,
+        "rpe_trans_rmse_m": _finite_or_none(rel.trans_rmse_m),
+        "rpe_trans_mean_m": _finite_or_none(rel.trans_mean_m),
+        "rpe_rot_rmse_deg": _finite_or_none(rel.rot_rmse_deg),
+        "rpe_rot_mean_deg": _finite_or_none(rel.rot_mean_deg),
+        "num_est_poses": int(len(est_c2w)),
+        "num_gt_poses": int(len(gt_c2w)),
+        "num_associated": int(len(est_idx)),
+        "num_unassociated_est": int(len(est_c2w) - len(est_idx)),
+        "num_skipped_invalid_gt": int(np.sum(~used)),
+        "num_evaluated": int(np.sum(used)),
+        "num_rpe_pairs": int(len(rel.pairs)),
+        "max_dt_s": float(max_dt),
+        "with_scale": bool(with_scale),
+        "alignment": ate.alignment.to_json(),
+        "definitions": dict(DEFINITIONS),
+    }

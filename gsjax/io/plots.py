@@ -1,0 +1,108 @@
+"""Plots with matplotlib's Agg backend (no pyplot, no global state): trajectory top view and errors over time.
+
+Each function builds its own Figure, renders it to PNG in memory and writes the file atomically.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+
+from gsjax.io.atomic import atomic_write_bytes
+
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def _save(fig: Figure, path: str | os.PathLike, dpi: int) -> Path:
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def top_view_axes(positions: np.ndarray) -> tuple[int, int]:
+    """The two coordinate axes with the largest extent of ``positions`` [N, 3], in increasing order."""
+    extent = np.nanmax(positions, axis=0) - np.nanmin(positions, axis=0)
+    return tuple(sorted(int(i) for i in np.argsort(extent)[-2:]))
+
+
+def plot_trajectory_top_view(
+    path: str | os.PathLike,
+    est_positions,
+    gt_positions,
+    plane: str = "auto",
+    title: str | None = None,
+    dpi: int = 120,
+) -> Path:
+    """Top view of the estimated camera centres (already aligned to the GT) and the GT centres, with the
+    per-frame offsets drawn as thin grey segments.
+
+    Args:
+      est_positions, gt_positions: [N, 3] camera centres (m), row i of one matching row i of the other.
+      plane: "xy", "xz", "yz", or "auto" (the two axes along which the GT extends most).
+    """
+    est = np.asarray(est_positions, np.float64)
+    gt = np.asarray(gt_positions, np.float64)
+    if est.shape != gt.shape or est.ndim != 2 or est.shape[1] != 3:
+        raise ValueError(f"positions must both have shape [N, 3], got {list(est.shape)} and {list(gt.shape)}")
+    if plane == "auto":
+        a, b = top_view_axes(gt)
+    elif len(plane) == 2 and all(c in _AXES for c in plane) and plane[0] != plane[1]:
+        a, b = _AXES[plane[0]], _AXES[plane[1]]
+    else:
+        raise ValueError(f"plane must be 'auto' or two of x/y/z such as 'xz', got {plane!r}")
+    names = "xyz"
+    fig = Figure(figsize=(6, 6))
+    ax = fig.add_subplot()
+    offsets = np.stack([est[:, [a, b]], gt[:, [a, b]]], axis=1)  # [N, 2 ends, 2 coords]
+    ax.add_collection(LineCollection(offsets, colors="0.75", linewidths=0.5, zorder=1))
+    ax.plot(gt[:, a], gt[:, b], color="black", linewidth=1.5, label="ground truth", zorder=2)
+    ax.plot(est[:, a], est[:, b], color="tab:blue", linewidth=1.2, label="estimate (aligned)", zorder=3)
+    ax.scatter(gt[:1, a], gt[:1, b], color="black", marker="o", s=25, zorder=4, label="start")
+    ax.set_xlabel(f"{names[a]} (m)")
+    ax.set_ylabel(f"{names[b]} (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, linewidth=0.3)
+    ax.legend(loc="best", fontsize=8)
+    if title:
+        ax.set_title(title)
+    return _save(fig, path, dpi)
+
+
+def plot_errors_over_time(
+    path: str | os.PathLike,
+    times,
+    series: dict[str, np.ndarray],
+    xlabel: str = "time (s)",
+    ylabel: str = "error",
+    title: str | None = None,
+    dpi: int = 120,
+) -> Path:
+    """Line plot of one or more error series over time.
+
+    Args:
+      times: [N] x values (s, or frame index with a matching ``xlabel``).
+      series: label -> [N] values, e.g. {"ATE (cm)": errors_cm}.
+    """
+    times = np.asarray(times, np.float64)
+    fig = Figure(figsize=(8, 3.5))
+    ax = fig.add_subplot()
+    for label, values in series.items():
+        values = np.asarray(values, np.float64)
+        if values.shape != times.shape:
+            raise ValueError(f"series {label!r} has shape {list(values.shape)}, times {list(times.shape)}")
+        ax.plot(times, values, linewidth=1.0, label=label)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, linewidth=0.3)
+    if len(series) > 1:
+        ax.legend(loc="best", fontsize=8)
+    if title:
+        ax.set_title(title)
+    return _save(fig, path, dpi)

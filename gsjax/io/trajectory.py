@@ -1,0 +1,124 @@
+"""TUM-format trajectory files: one pose per line, ``timestamp tx ty tz qx qy qz qw``, camera-to-world, metres.
+
+Lines that are empty or start with ``#`` are ignored. Quaternions are normalised on reading (files carry a few
+digits only). A pose written as ``nan``/``inf`` values is read as an all-NaN matrix (an invalid pose, e.g. a
+ScanNet frame without ground truth), which the metrics skip and count. Quaternion maths here is numpy float64.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from gsjax.io.atomic import atomic_write_text
+
+HEADER = "# timestamp tx ty tz qx qy qz qw (camera-to-world, metres)\n"
+
+
+def quaternion_wxyz_to_rotation(quat: np.ndarray) -> np.ndarray:
+    """Unit quaternions [..., 4] (w, x, y, z) -> rotation matrices [..., 3, 3] (float64)."""
+    w, x, y, z = np.moveaxis(np.asarray(quat, np.float64), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def rotation_to_quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
+    """Rotation matrices [..., 3, 3] -> unit quaternions [..., 4] (w, x, y, z) with w >= 0 (Shepperd's method)."""
+    r = np.asarray(rotation, np.float64)
+    trace = r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2]
+    candidates = np.stack(
+        [
+            np.stack([1 + trace, r[..., 2, 1] - r[..., 1, 2],
+                      r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1),
+            np.stack([r[..., 2, 1] - r[..., 1, 2], 1 + r[..., 0, 0] - r[..., 1, 1] - r[..., 2, 2],
+                      r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0]], -1),
+            np.stack([r[..., 0, 2] - r[..., 2, 0], r[..., 0, 1] + r[..., 1, 0],
+                      1 - r[..., 0, 0] + r[..., 1, 1] - r[..., 2, 2], r[..., 1, 2] + r[..., 2, 1]], -1),
+            np.stack([r[..., 1, 0] - r[..., 0, 1], r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1],
+                      1 - r[..., 0, 0] - r[..., 1, 1] + r[..., 2, 2]], -1),
+        ],
+        -2,
+    )  # [..., 4 candidates, 4]; each is well conditioned when its pivot is the largest
+    pivot = np.argmax(np.stack([trace, r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]], -1), axis=-1)
+    q = np.take_along_axis(candidates, pivot[..., None, None], axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def read_tum_trajectory(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a TUM trajectory file.
+
+    Returns:
+      (timestamps [N] float64 seconds, c2w [N, 4, 4] float64 metres).
+
+    Raises:
+      FileNotFoundError if the file is missing; ValueError naming the file and line for a malformed line, a zero
+      quaternion or a timestamp that does not increase.
+    """
+    path = Path(path)
+    stamps, poses = [], []
+    with open(path, encoding="utf-8") as f:
+        for lineno, line in enumerate(f, start=1):
+            text = line.strip()
+            if not text or text.startswith("#"):
+                continue
+            fields = text.replace(",", " ").split()
+            where = f"{path}:{lineno}"
+            if len(fields) != 8:
+                raise ValueError(
+                    f"{where}: expected 8 numbers 'timestamp tx ty tz qx qy qz qw', got {len(fields)}: {text!r}"
+                )
+            try:
+                values = [float(v) for v in fields]
+            except ValueError:
+                raise ValueError(f"{where}: not a number in {text!r}") from None
+            t, xyz, q_xyzw = values[0], np.array(values[1:4]), np.array(values[4:8])
+            if not np.isfinite(t):
+                raise ValueError(f"{where}: timestamp must be finite, got {fields[0]!r}")
+            if stamps and not t > stamps[-1]:
+                raise ValueError(f"{where}: timestamp {fields[0]} does not increase (previous {stamps[-1]!r})")
+            c2w = np.full((4, 4), np.nan)
+            if np.isfinite(xyz).all() and np.isfinite(q_xyzw).all():
+                norm = np.linalg.norm(q_xyzw)
+                if not norm > 1e-6:
+                    raise ValueError(f"{where}: quaternion (qx qy qz qw) has zero length: {text!r}")
+                c2w = np.eye(4)
+                c2w[:3, :3] = quaternion_wxyz_to_rotation(np.roll(q_xyzw / norm, 1))
+                c2w[:3, 3] = xyz
+            stamps.append(t)
+            poses.append(c2w)
+    return np.asarray(stamps, np.float64).reshape(-1), np.asarray(poses, np.float64).reshape(-1, 4, 4)
+
+
+def format_tum_trajectory(timestamps, c2w) -> str:
+    """The text of a TUM trajectory file (with a comment header). Numbers are written with the shortest repr that
+    reads back to the same float64, so a write/read round trip is exact up to the quaternion conversion."""
+    timestamps = np.asarray(timestamps, np.float64)
+    c2w = np.asarray(c2w, np.float64)
+    if c2w.ndim != 3 or c2w.shape[1:] != (4, 4) or timestamps.shape != (len(c2w),):
+        raise ValueError(f"need timestamps [N] and c2w [N, 4, 4], got {list(timestamps.shape)} and {list(c2w.shape)}")
+    if not np.isfinite(timestamps).all() or np.any(np.diff(timestamps) <= 0):
+        raise ValueError("timestamps must be finite and strictly increasing")
+    q_wxyz = rotation_to_quaternion_wxyz(np.nan_to_num(c2w[:, :3, :3]))
+    lines = [HEADER]
+    for t, pose, q in zip(timestamps, c2w, q_wxyz):
+        if np.isfinite(pose).all():
+            values = [*pose[:3, 3], q[1], q[2], q[3], q[0]]
+        else:
+            values = [np.nan] * 7
+        lines.append(" ".join(repr(float(v)) for v in (t, *values)) + "\n")
+    return "".join(lines)
+
+
+def write_tum_trajectory(path: str | os.PathLike, timestamps, c2w) -> Path:
+    """Write camera-to-world poses [N, 4, 4] with timestamps [N] (s) as a TUM trajectory file, atomically.
+    Non-finite poses are written as ``nan`` (read back as invalid poses)."""
+    return atomic_write_text(path, format_tum_trajectory(timestamps, c2w))
