@@ -11,7 +11,7 @@ import pytest
 
 from data_fixtures import tiny_scene, write_replica, write_scannet, write_sevenscenes, write_tum_by_hand
 from gsjax.camera import make_intrinsics
-from gsjax.data import DatasetError, Frame, open_sequence
+from gsjax.data import DatasetError, Frame, open_sequence, write_tum
 from gsjax.data.tum import FREIBURG_INTRINSICS, associate
 
 WRITERS = {"replica": write_replica, "scannet": write_scannet, "7scenes": write_sevenscenes}
@@ -132,6 +132,24 @@ def test_sevenscenes_missing_pose_file_flags_frame_and_65535_is_invalid(tmp_path
     np.testing.assert_array_equal(seq.gt_trajectory()[2], [True, False, True, True])
     np.testing.assert_array_equal(np.asarray(seq[0].depth)[0, :5], 0.0)
     assert np.all(np.asarray(seq[0].depth)[1] > 0)
+
+
+def test_sevenscenes_without_intrinsics_file_uses_the_nominal_camera(tmp_path, scene):
+    folder = write_sevenscenes(tmp_path, scene)
+    (folder / "camera-intrinsics.txt").unlink()
+    k = open_sequence("7scenes", folder).intrinsics
+    assert k.shape == scene[0].shape  # from the first depth image
+    np.testing.assert_allclose([k.fx, k.fy, k.cx, k.cy], [585.0, 585.0, 320.0, 240.0])
+
+
+def test_write_tum_keeps_missing_poses_missing(tmp_path, scene):
+    folder = write_sevenscenes(tmp_path, scene)
+    (folder / "frame-000002.pose.txt").unlink()
+    converted = open_sequence("tum", write_tum(open_sequence("7scenes", folder), tmp_path / "as_tum"))
+    _, poses, valid = converted.gt_trajectory()
+    np.testing.assert_array_equal(valid, [True, True, False, True])
+    np.testing.assert_allclose(poses[valid], scene[3][valid], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(converted[3].depth), scene[2][3], atol=0.5 / 1000 + 0.5 / 5000 + 1e-6)
 
 
 def test_replica_defaults_to_nice_slam_camera_without_cam_params(tmp_path, scene):

@@ -198,3 +198,10 @@ def test_non_pinhole_calibration_matrix_is_reported(tmp_path, scene):
     (folder / "camera-intrinsics.txt").write_text("25 3 16\n0 25 12\n0 0 1\n")
     with _raises(folder / "camera-intrinsics.txt", "not a pinhole calibration matrix"):
         open_sequence("7scenes", folder)
+
+
+def test_two_files_for_one_frame_number_are_reported(tmp_path, scene):
+    folder = write_replica(tmp_path, scene)
+    (folder / "results" / "frame000001.jpg").write_bytes((folder / "results" / "frame000001.png").read_bytes())
+    with _raises(folder / "results", "two files for frame 1: frame000001"):
+        open_sequence("replica", folder)

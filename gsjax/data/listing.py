@@ -80,7 +80,8 @@ def sequence_from_files(
     for path in (*color_paths, *depth_paths):
         if not path.is_file():
             raise DatasetError(f"{path}: image is missing")
-    intrinsics = files.intrinsics.downscaled(downscale)  # also validates the factor
+    # downscaled() validates the factor; 1 keeps the given values bit for bit.
+    intrinsics = files.intrinsics if downscale == 1 else files.intrinsics.downscaled(downscale)
     native_shape = files.intrinsics.shape
 
     def read_rgbd(i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -113,7 +114,10 @@ def numbered_files(directory: Path, pattern: str) -> dict[int, Path]:
     for path in directory.iterdir():
         match = regex.fullmatch(path.name)
         if match:
-            found[int(match.group(1))] = path
+            number = int(match.group(1))
+            if number in found:
+                raise DatasetError(f"{directory}: two files for frame {number}: {found[number].name}, {path.name}")
+            found[number] = path
     return dict(sorted(found.items()))
 
 
