@@ -89,10 +89,35 @@ def _cmd_eval(args) -> int:
     return 0
 
 
+def _add_synth(sub) -> None:
+    p = sub.add_parser("synth", help="render a synthetic RGB-D sequence and write it in the TUM RGB-D layout")
+    p.add_argument("--out", type=Path, required=True, help="output directory (must not exist or be empty)")
+    p.add_argument("--frames", type=int, default=60, help="number of frames (default 60)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
+    p.add_argument("--noise", action="store_true", help="add Kinect-like sensor noise, holes and blur")
+    p.set_defaults(func=_cmd_synth)
+
+
+def _cmd_synth(args) -> int:
+    from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+    from gsjax.data.tum import write_tum
+
+    if args.frames < 1:
+        raise UserError(f"--frames must be >= 1, got {args.frames}")
+    if args.out.exists() and (not args.out.is_dir() or any(args.out.iterdir())):
+        raise UserError(f"--out {args.out} already exists and is not an empty directory; refusing to overwrite")
+    config = SyntheticConfig(num_frames=args.frames, seed=args.seed)
+    if args.noise:
+        config = config.with_sensor_noise()
+    write_tum(synthetic_sequence(config), args.out)
+    print(f"wrote {args.frames} frames ({config.width}x{config.height}) in the TUM layout to {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gsjax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_demo, _add_eval):
+    for add in (_add_demo, _add_eval, _add_synth):
         add(sub)
     return parser
 

@@ -1,0 +1,78 @@
+"""Datasets: the :class:`Frame` pytree, lazily read :class:`Sequence` s, readers, and synthetic scenes.
+
+``open_sequence`` is the one entry point for data on disk::
+
+    seq = open_sequence("tum", "data/rgbd_dataset_freiburg1_desk", max_frames=100, downscale=2)
+    for chunk in seq.chunks(16):   # Frame with a leading axis of 16, for lax.scan
+        ...
+    times, c2w, valid = seq.gt_trajectory()   # camera-to-world, as the dataset gives it (not re-based)
+
+The readers and their formats: :mod:`gsjax.data.tum`, :mod:`gsjax.data.replica`, :mod:`gsjax.data.scannet`,
+:mod:`gsjax.data.sevenscenes`; the downscaling rules: :mod:`gsjax.data.images`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from gsjax.camera import Intrinsics
+from gsjax.data.frame import DatasetError, Frame, stack_frames
+from gsjax.data.listing import sequence_from_files
+from gsjax.data.replica import list_replica
+from gsjax.data.scannet import list_scannet
+from gsjax.data.sequence import Sequence
+from gsjax.data.sevenscenes import list_sevenscenes
+from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+from gsjax.data.tum import list_tum, write_tum
+
+READERS = {"tum": list_tum, "replica": list_replica, "scannet": list_scannet, "7scenes": list_sevenscenes}
+
+
+def open_sequence(
+    dataset: str,
+    path: str | Path,
+    *,
+    max_frames: int | None = None,
+    stride: int = 1,
+    downscale: int = 1,
+    start: int = 0,
+    intrinsics: Intrinsics | None = None,
+) -> Sequence:
+    """Open an RGB-D sequence stored in a dataset's own layout; frames are read only when accessed.
+
+    Args:
+      dataset: "tum", "replica", "scannet" or "7scenes".
+      path: the sequence directory (TUM: the one holding rgb.txt; Replica: the scene folder holding results/).
+      max_frames: keep at most this many frames (after start and stride).
+      stride: keep every stride-th frame.
+      downscale: integer factor; images are reduced by f x f blocks (colour: mean; depth: median of the valid
+        samples, invalid when fewer than half are valid) and the intrinsics by ``Intrinsics.downscaled(f)``.
+      start: index of the first frame kept (in the dataset's listing).
+      intrinsics: native-resolution intrinsics overriding the dataset's (their size must match the images).
+
+    Returns:
+      A :class:`Sequence` whose ``intrinsics`` are the downscaled ones.
+
+    Raises:
+      DatasetError (a ValueError) naming the file, for anything missing, unreadable or inconsistent; checks of
+      listings and poses happen here, checks of image contents when a frame is read.
+    """
+    if dataset not in READERS:
+        raise ValueError(f"unknown dataset {dataset!r}; expected one of {', '.join(READERS)}")
+    path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"{path}: {dataset} sequence directory is missing")
+    files = READERS[dataset](path, intrinsics)
+    return sequence_from_files(files, path, start=start, stride=stride, max_frames=max_frames, downscale=downscale)
+
+
+__all__ = [
+    "DatasetError",
+    "Frame",
+    "Sequence",
+    "SyntheticConfig",
+    "open_sequence",
+    "stack_frames",
+    "synthetic_sequence",
+    "write_tum",
+]

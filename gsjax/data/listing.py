@@ -1,0 +1,145 @@
+"""What readers share: the :class:`FrameFiles` listing, turning a listing into a :class:`Sequence`, numbered-file
+discovery and intrinsics files.
+
+Every reader only *lists* a dataset (paths, timestamps, poses, native intrinsics), checking listing and poses at
+open time; :func:`sequence_from_files` applies the common options (start, stride, max_frames, downscale), checks
+that the selected images exist, and returns a Sequence that reads and checks each image pair when it is asked for.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from gsjax.camera import Intrinsics, make_intrinsics
+from gsjax.data.frame import DatasetError
+from gsjax.data.images import load_rgbd
+from gsjax.data.sequence import Sequence
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameFiles:
+    """What a reader lists on disk, before the common options are applied (N frames).
+
+    Attributes:
+      name: sequence name.
+      color_paths, depth_paths: N image paths each.
+      timestamps: [N] float64 s.
+      c2w: [N, 4, 4] float64 GT camera-to-world poses (anything where invalid); pose_valid: [N] bool.
+      intrinsics: intrinsics of the images on disk (native size, before downscaling).
+      depth_scale: raw depth units per metre.
+      invalid_raw: raw 16-bit depth values that mark invalid pixels besides 0.
+      resize_color: resample colour to the depth size (ScanNet), instead of rejecting a size mismatch.
+    """
+
+    name: str
+    color_paths: list[Path]
+    depth_paths: list[Path]
+    timestamps: np.ndarray
+    c2w: np.ndarray
+    pose_valid: np.ndarray
+    intrinsics: Intrinsics
+    depth_scale: float
+    invalid_raw: tuple[int, ...] = (0,)
+    resize_color: bool = False
+
+
+def select_indices(count: int, *, start: int = 0, stride: int = 1, max_frames: int | None = None) -> np.ndarray:
+    """Indices ``start, start + stride, ...`` below ``count``, at most ``max_frames`` of them."""
+    for label, value, low in (("start", start, 0), ("stride", stride, 1)):
+        if not isinstance(value, (int, np.integer)) or value < low:
+            raise ValueError(f"{label} must be an int >= {low}, got {value!r}")
+    if max_frames is not None and (not isinstance(max_frames, (int, np.integer)) or max_frames < 1):
+        raise ValueError(f"max_frames must be a positive int or None, got {max_frames!r}")
+    return np.arange(start, count, stride)[:max_frames]
+
+
+def sequence_from_files(
+    files: FrameFiles,
+    source: Path,
+    *,
+    start: int = 0,
+    stride: int = 1,
+    max_frames: int | None = None,
+    downscale: int = 1,
+) -> Sequence:
+    """Apply the common options to a listing and wrap it in a lazily read :class:`Sequence`.
+
+    Raises DatasetError naming ``source`` when no frame is left, or naming the file when a selected image is missing.
+    """
+    total = len(files.timestamps)
+    keep = select_indices(total, start=start, stride=stride, max_frames=max_frames)
+    if keep.size == 0:
+        raise DatasetError(f"{source}: empty sequence ({total} frames listed, none left from start={start})")
+    color_paths = [files.color_paths[i] for i in keep]
+    depth_paths = [files.depth_paths[i] for i in keep]
+    for path in (*color_paths, *depth_paths):
+        if not path.is_file():
+            raise DatasetError(f"{path}: image is missing")
+    # downscaled() validates the factor; 1 keeps the given values bit for bit.
+    intrinsics = files.intrinsics if downscale == 1 else files.intrinsics.downscaled(downscale)
+    native_shape = files.intrinsics.shape
+
+    def read_rgbd(i: int) -> tuple[np.ndarray, np.ndarray]:
+        return load_rgbd(
+            color_paths[i],
+            depth_paths[i],
+            depth_scale=files.depth_scale,
+            native_shape=native_shape,
+            downscale=downscale,
+            invalid_raw=files.invalid_raw,
+            resize_color=files.resize_color,
+        )
+
+    return Sequence(
+        name=files.name,
+        intrinsics=intrinsics,
+        timestamps=files.timestamps[keep],
+        c2w=files.c2w[keep],
+        pose_valid=files.pose_valid[keep],
+        read_rgbd=read_rgbd,
+    )
+
+
+def numbered_files(directory: Path, pattern: str) -> dict[int, Path]:
+    """Files in ``directory`` whose name fully matches ``pattern`` (one group: the frame number) -> {number: path}."""
+    regex = re.compile(pattern)
+    if not directory.is_dir():
+        raise DatasetError(f"{directory}: directory is missing")
+    found = {}
+    for path in directory.iterdir():
+        match = regex.fullmatch(path.name)
+        if match:
+            number = int(match.group(1))
+            if number in found:
+                raise DatasetError(f"{directory}: two files for frame {number}: {found[number].name}, {path.name}")
+            found[number] = path
+    return dict(sorted(found.items()))
+
+
+def intrinsics_from_matrix(k: np.ndarray, height: int, width: int, where: Path) -> Intrinsics:
+    """A 3x3 (or the top-left of a 4x4) calibration matrix -> Intrinsics; DatasetError naming ``where`` if invalid."""
+    k = np.asarray(k, np.float64)
+    if abs(k[0, 1]) > 1e-9 or np.any(np.abs(k[2, :3] - (0.0, 0.0, 1.0)) > 1e-9) or abs(k[1, 0]) > 1e-9:
+        raise DatasetError(f"{where}: not a pinhole calibration matrix (fx 0 cx; 0 fy cy; 0 0 1): {k[:3, :3].tolist()}")
+    try:
+        return make_intrinsics(k[0, 0], k[1, 1], k[0, 2], k[1, 2], height, width)
+    except ValueError as err:
+        raise DatasetError(f"{where}: {err}") from None
+
+
+def read_json_numbers(path: Path, required: tuple[str, ...], optional: tuple[str, ...] = (), within: str = "") -> dict:
+    """Numbers from a JSON object (or from its member ``within``): all ``required`` names, and the ``optional`` ones
+    that are present -> {name: float}. DatasetError naming the file when one is missing or not a number."""
+    try:
+        data = json.loads(path.read_text())
+        if within:
+            data = data[within]
+        names = list(required) + [name for name in optional if name in data]
+        return {name: float(data[name]) for name in names}
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise DatasetError(f"{path}: cannot read {', '.join(required)} ({type(err).__name__}: {err})") from None

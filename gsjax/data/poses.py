@@ -1,0 +1,126 @@
+"""Ground-truth pose parsing and checks, host-side in float64 (jax runs float32 here, too coarse for GT).
+
+Poses are camera-to-world 4x4 matrices (m). A pose whose numbers are not all finite (ScanNet writes ``-inf`` for
+frames where its reconstruction lost track) is *missing*: flagged invalid, never dropped. A finite matrix that is
+not a rigid transform is an error.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from gsjax.data.frame import DatasetError
+
+# Largest tolerated |R^T R - I|, |det R - 1| or deviation of the last row from (0, 0, 0, 1). Real GT is far
+# inside (7-Scenes' KinectFusion poses: 1.5e-4; ScanNet and Replica: ~1e-7); scaled or sheared matrices are far out.
+RIGIDITY_TOLERANCE = 1e-2
+
+
+def rigidity_error(c2w: np.ndarray) -> np.ndarray:
+    """[..., 4, 4] -> [...] max of |R^T R - I|, |det R - 1| and |last row - e4| (0 for a rigid transform)."""
+    rot = c2w[..., :3, :3]
+    ortho = np.abs(np.swapaxes(rot, -1, -2) @ rot - np.eye(3)).max(axis=(-1, -2))
+    det = np.abs(np.linalg.det(rot) - 1.0)
+    last = np.abs(c2w[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1)
+    return np.maximum(np.maximum(ortho, det), last)
+
+
+def check_poses(c2w: np.ndarray, where: list[str]) -> np.ndarray:
+    """Validate poses [T, 4, 4] -> valid [T] bool (finite ones); ``where[i]`` names pose i's source in errors."""
+    valid = np.all(np.isfinite(c2w), axis=(-1, -2))
+    error = np.where(valid, rigidity_error(np.where(valid[:, None, None], c2w, np.eye(4))), 0.0)
+    bad = np.flatnonzero(error > RIGIDITY_TOLERANCE)
+    if bad.size:
+        i = int(bad[0])
+        raise DatasetError(
+            f"{where[i]}: pose is not a rigid transform (deviation {error[i]:.3g} > {RIGIDITY_TOLERANCE}); "
+            f"{bad.size} such pose(s) in all"
+        )
+    return valid
+
+
+def parse_numbers(line: str, count: int, where: str) -> np.ndarray:
+    """Exactly ``count`` whitespace-separated floats from a text line (``inf``/``nan`` allowed) -> float64 [count]."""
+    fields = line.split()
+    if len(fields) != count:
+        raise DatasetError(f"{where}: expected {count} numbers, got {len(fields)}: {line.strip()[:80]!r}")
+    try:
+        return np.array([float(f) for f in fields], np.float64)
+    except ValueError:
+        raise DatasetError(f"{where}: cannot parse numbers in {line.strip()[:80]!r}") from None
+
+
+def data_lines(path: Path) -> list[tuple[int, str]]:
+    """(1-based line number, line) for the non-empty, non-comment (``#``) lines of a text file."""
+    try:
+        text = Path(path).read_text()
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file is missing") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise DatasetError(f"{path}: cannot be read ({err})") from None
+    numbered = enumerate(text.splitlines(), 1)
+    return [(n, line) for n, line in numbered if line.strip() and not line.lstrip().startswith("#")]
+
+
+def read_matrix(path: Path, rows: int) -> np.ndarray:
+    """A text file holding a ``rows`` x ``rows`` matrix, one row per line -> float64 [rows, rows]."""
+    lines = data_lines(path)
+    if len(lines) != rows:
+        raise DatasetError(f"{path}: expected a {rows}x{rows} matrix ({rows} lines), got {len(lines)} lines")
+    return np.stack([parse_numbers(line, rows, f"{path}:{n}") for n, line in lines])
+
+
+def quaternion_to_matrix(quat_xyzw: np.ndarray) -> np.ndarray:
+    """Unit quaternions [..., 4] in TUM order (qx, qy, qz, qw) -> rotation matrices [..., 3, 3], float64."""
+    x, y, z, w = np.moveaxis(np.asarray(quat_xyzw, np.float64), -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def matrix_to_quaternion(rotation: np.ndarray) -> np.ndarray:
+    """Rotation matrix [3, 3] -> unit quaternion [4] (qx, qy, qz, qw), qw >= 0 (Shepperd's method, float64)."""
+    r = np.asarray(rotation, np.float64)
+    trace = np.trace(r)
+    candidates = np.array(
+        [
+            [r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1], 1.0 + trace],
+            [1.0 + r[0, 0] - r[1, 1] - r[2, 2], r[0, 1] + r[1, 0], r[0, 2] + r[2, 0], r[2, 1] - r[1, 2]],
+            [r[0, 1] + r[1, 0], 1.0 - r[0, 0] + r[1, 1] - r[2, 2], r[1, 2] + r[2, 1], r[0, 2] - r[2, 0]],
+            [r[0, 2] + r[2, 0], r[1, 2] + r[2, 1], 1.0 - r[0, 0] - r[1, 1] + r[2, 2], r[1, 0] - r[0, 1]],
+        ]
+    )
+    q = candidates[np.argmax([trace, r[0, 0], r[1, 1], r[2, 2]])]
+    q = q / np.linalg.norm(q)
+    return -q if q[3] < 0 else q
+
+
+def read_pose_files(paths: list[Path]) -> tuple[np.ndarray, np.ndarray]:
+    """One 4x4 camera-to-world text file per frame -> (c2w [N, 4, 4] float64, valid [N] bool).
+
+    A missing file or a non-finite matrix flags the frame invalid; an unparsable or non-rigid one is an error.
+    """
+    c2w = np.full((len(paths), 4, 4), np.nan)
+    for i, path in enumerate(paths):
+        if path.is_file():
+            c2w[i] = read_matrix(path, 4)
+    return c2w, check_poses(c2w, [str(p) for p in paths])
+
+
+def read_pose_lines(path: Path, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """A text file with one row-major 4x4 camera-to-world matrix (16 numbers) per line; line k is frame k ->
+    (c2w [count, 4, 4] float64, valid [count] bool). Frames beyond the last line are flagged invalid."""
+    lines = data_lines(path)
+    c2w = np.full((count, 4, 4), np.nan)
+    where = [f"{path} (frame {k}: no line)" for k in range(count)]
+    for k, (n, line) in enumerate(lines[:count]):
+        c2w[k] = parse_numbers(line, 16, f"{path}:{n}").reshape(4, 4)
+        where[k] = f"{path}:{n}"
+    return c2w, check_poses(c2w, where)

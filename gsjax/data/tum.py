@@ -1,0 +1,202 @@
+"""TUM RGB-D: reader and writer.
+
+Layout (https://cvg.cit.tum.de/data/datasets/rgbd-dataset/file_formats): ``rgb.txt`` and ``depth.txt`` list
+``timestamp filename`` per line, ``groundtruth.txt`` lists ``timestamp tx ty tz qx qy qz qw`` (camera-to-world,
+m), lines starting with ``#`` are comments; depth is 16-bit PNG with 5000 units per metre, 0 invalid.
+
+Association (as TUM's ``associate.py``): colour and depth timestamps are paired one-to-one, greedily by smallest
+time difference, within 0.02 s; a colour frame with no depth partner is dropped (with a warning giving the
+count; an error when none is left). Each kept frame takes the ground-truth sample nearest in time if it lies
+within 0.02 s; otherwise its pose is flagged invalid. The frame's timestamp is its colour timestamp.
+
+Intrinsics, first found wins: the ``intrinsics`` argument; ``intrinsics.json`` beside ``rgb.txt`` (``fx, fy, cx,
+cy`` and optionally ``width, height``, else the first colour image's size); the Freiburg camera named by the
+directory (``freiburg1``/``fr1``... in its name or its parent's), with the values of the TUM documentation at
+640x480. Lens distortion (fr1, fr2) is not modelled, as in SplaTAM.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from gsjax.camera import Intrinsics, make_intrinsics
+from gsjax.data.frame import DatasetError
+from gsjax.data.images import atomic_write, encode_png, image_size
+from gsjax.data.listing import FrameFiles, read_json_numbers
+from gsjax.data.poses import data_lines, matrix_to_quaternion, parse_numbers, quaternion_to_matrix
+from gsjax.data.sequence import Sequence
+
+DEPTH_SCALE = 5000.0  # raw units per metre
+MAX_TIME_DIFFERENCE = 0.02  # s, for colour-depth and colour-groundtruth association
+# Freiburg camera intrinsics (fx, fy, cx, cy) at 640x480 from the TUM RGB-D documentation.
+FREIBURG_INTRINSICS = {
+    1: (517.3, 516.5, 318.6, 255.3),
+    2: (520.9, 521.0, 325.1, 249.7),
+    3: (535.4, 539.2, 320.1, 247.6),
+}
+_FREIBURG_NAME = re.compile(r"(?:^|[^a-z0-9])(?:freiburg|fr)([123])(?:[^0-9]|$)", re.IGNORECASE)
+
+
+def list_tum(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
+    """List a TUM RGB-D sequence directory (see the module docstring); no image is decoded except, at most, one
+    colour image for its size when ``intrinsics.json`` gives none."""
+    path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"{path}: TUM sequence directory is missing")
+    rgb_times, rgb_names = _read_file_list(path / "rgb.txt")
+    depth_times, depth_names = _read_file_list(path / "depth.txt")
+    if not rgb_times.size:
+        raise DatasetError(f"{path / 'rgb.txt'}: empty sequence (no colour frames listed)")
+    rgb_idx, depth_idx = associate(rgb_times, depth_times, MAX_TIME_DIFFERENCE)
+    if not rgb_idx.size:
+        raise DatasetError(
+            f"{path / 'depth.txt'}: no depth association: none of the {rgb_times.size} colour timestamps has a depth "
+            f"timestamp within {MAX_TIME_DIFFERENCE} s"
+        )
+    if rgb_idx.size < rgb_times.size:
+        warnings.warn(
+            f"{path / 'depth.txt'}: {rgb_times.size - rgb_idx.size} of {rgb_times.size} colour frames have no depth "
+            f"within {MAX_TIME_DIFFERENCE} s and are skipped",
+            stacklevel=2,
+        )
+    times = rgb_times[rgb_idx]
+    c2w, valid = _associate_groundtruth(path / "groundtruth.txt", times)
+    return FrameFiles(
+        name=path.name,
+        color_paths=[path / rgb_names[i] for i in rgb_idx],
+        depth_paths=[path / depth_names[i] for i in depth_idx],
+        timestamps=times,
+        c2w=c2w,
+        pose_valid=valid,
+        intrinsics=intrinsics if intrinsics is not None else _tum_intrinsics(path, path / rgb_names[rgb_idx[0]]),
+        depth_scale=DEPTH_SCALE,
+    )
+
+
+def associate(first: np.ndarray, second: np.ndarray, max_difference: float) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one pairs (i, j) with |first[i] - second[j]| <= max_difference, chosen greedily by smallest
+    difference (TUM's associate.py) -> (i [P], j [P]) sorted by i."""
+    order = np.argsort(second)
+    sorted_second = second[order]
+    candidates = []
+    for i, t in enumerate(first):
+        lo, hi = np.searchsorted(sorted_second, [t - max_difference, t + max_difference], side="left")
+        for k in range(lo, min(hi + 1, len(sorted_second))):
+            difference = abs(sorted_second[k] - t)
+            if difference <= max_difference:
+                candidates.append((difference, i, int(order[k])))
+    used_first, used_second, pairs = set(), set(), []
+    for _, i, j in sorted(candidates):
+        if i not in used_first and j not in used_second:
+            used_first.add(i)
+            used_second.add(j)
+            pairs.append((i, j))
+    pairs.sort()
+    return np.array([p[0] for p in pairs], np.int64), np.array([p[1] for p in pairs], np.int64)
+
+
+def _read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
+    """``timestamp filename`` lines -> (timestamps [N] float64 sorted ascending, file names [N])."""
+    entries = []
+    for n, line in data_lines(path):
+        fields = line.split()
+        if len(fields) < 2:
+            raise DatasetError(f"{path}:{n}: expected 'timestamp filename', got {line.strip()[:80]!r}")
+        try:
+            stamp = float(fields[0])
+        except ValueError:
+            raise DatasetError(f"{path}:{n}: cannot parse timestamp {fields[0]!r}") from None
+        entries.append((stamp, fields[1]))
+    entries.sort()
+    return np.array([e[0] for e in entries], np.float64), [e[1] for e in entries]
+
+
+def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest groundtruth pose within the tolerance for each time -> (c2w [T, 4, 4], valid [T]); all invalid
+    when ``groundtruth.txt`` is absent (TUM's test sequences have none). Non-finite samples are ignored."""
+    c2w, valid = np.tile(np.eye(4), (times.size, 1, 1)), np.zeros(times.size, bool)
+    lines = data_lines(path) if path.exists() else []
+    rows = np.stack([parse_numbers(line, 8, f"{path}:{n}") for n, line in lines]) if lines else np.zeros((0, 8))
+    quat_norm = np.linalg.norm(rows[:, 4:], axis=-1)
+    bad = np.flatnonzero(np.abs(quat_norm - 1.0) > 1e-2)  # NaN norms compare False: treated as missing below
+    if bad.size:
+        n = lines[int(bad[0])][0]
+        norm = quat_norm[bad[0]]
+        raise DatasetError(f"{path}:{n}: pose is not a rigid transform (quaternion norm {norm:.4g}, not 1)")
+    rows = rows[np.isfinite(rows).all(axis=-1)]
+    if not rows.size:
+        return c2w, valid
+    rows = rows[np.argsort(rows[:, 0])]
+    stamps = rows[:, 0]
+    after = np.searchsorted(stamps, times)
+    left, right = np.clip(after - 1, 0, stamps.size - 1), np.clip(after, 0, stamps.size - 1)
+    nearest = np.where(np.abs(stamps[left] - times) <= np.abs(stamps[right] - times), left, right)
+    valid = np.abs(stamps[nearest] - times) <= MAX_TIME_DIFFERENCE
+    picked = rows[nearest[valid]]
+    c2w[valid, :3, :3] = quaternion_to_matrix(picked[:, 4:] / np.linalg.norm(picked[:, 4:], axis=-1, keepdims=True))
+    c2w[valid, :3, 3] = picked[:, 1:4]
+    return c2w, valid
+
+
+def _tum_intrinsics(path: Path, first_color: Path) -> Intrinsics:
+    json_path = path / "intrinsics.json"
+    if json_path.exists():
+        values = read_json_numbers(json_path, ("fx", "fy", "cx", "cy"), ("width", "height"))
+        if "width" in values and "height" in values:
+            height, width = int(values["height"]), int(values["width"])
+        else:
+            height, width = image_size(first_color)
+        try:
+            return make_intrinsics(values["fx"], values["fy"], values["cx"], values["cy"], height, width)
+        except ValueError as err:
+            raise DatasetError(f"{json_path}: {err}") from None
+    for name in (path.resolve().name, path.resolve().parent.name):
+        match = _FREIBURG_NAME.search(name)
+        if match:
+            return make_intrinsics(*FREIBURG_INTRINSICS[int(match.group(1))], height=480, width=640)
+    raise DatasetError(
+        f"{path}: cannot determine the camera intrinsics: no intrinsics.json beside rgb.txt and the directory name "
+        "names no Freiburg camera (freiburg1/2/3 or fr1/2/3); pass intrinsics=... explicitly"
+    )
+
+
+def write_tum(sequence: Sequence, out_dir: Path) -> Path:
+    """Write a sequence in the TUM RGB-D layout that :func:`list_tum` reads back; returns ``out_dir``.
+
+    Colour as 8-bit PNG (rounded), depth as 16-bit PNG with 5000 units per metre (rounded; depths beyond
+    65535 / 5000 = 13.1 m are an error), ``groundtruth.txt`` for the frames with a valid pose, and
+    ``intrinsics.json`` (fx, fy, cx, cy, width, height). Every file is written atomically.
+    """
+    out_dir = Path(out_dir)
+    (out_dir / "rgb").mkdir(parents=True, exist_ok=True)
+    (out_dir / "depth").mkdir(parents=True, exist_ok=True)
+    times, c2w, valid = sequence.gt_trajectory()
+    rgb_lines = ["# color images", f"# file: '{sequence.name}'", "# timestamp filename"]
+    depth_lines = ["# depth maps", f"# file: '{sequence.name}'", "# timestamp filename"]
+    gt_lines = ["# ground truth trajectory", f"# file: '{sequence.name}'", "# timestamp tx ty tz qx qy qz qw"]
+    for i, stamp in enumerate(times):
+        frame = sequence.read_host(i)
+        name = f"{stamp:.6f}.png"
+        raw_depth = np.round(frame.depth.astype(np.float64) * DEPTH_SCALE)
+        if raw_depth.max(initial=0.0) > np.iinfo(np.uint16).max:
+            raise ValueError(f"frame {i}: depth {frame.depth.max():.2f} m exceeds what 16-bit TUM depth can hold")
+        rgb8 = np.round(np.clip(frame.color, 0.0, 1.0) * 255.0).astype(np.uint8)
+        atomic_write(out_dir / "rgb" / name, encode_png(rgb8, out_dir / "rgb" / name))
+        atomic_write(out_dir / "depth" / name, encode_png(raw_depth.astype(np.uint16), out_dir / "depth" / name))
+        rgb_lines.append(f"{stamp:.6f} rgb/{name}")
+        depth_lines.append(f"{stamp:.6f} depth/{name}")
+        if valid[i]:
+            t, q = c2w[i, :3, 3], matrix_to_quaternion(c2w[i, :3, :3])
+            gt_lines.append(f"{stamp:.6f} " + " ".join(f"{x:.9f}" for x in (*t, *q)))
+    k = sequence.intrinsics
+    calib = {name: float(getattr(k, name)) for name in ("fx", "fy", "cx", "cy")}
+    calib |= {"width": k.width, "height": k.height}
+    atomic_write(out_dir / "intrinsics.json", json.dumps(calib, indent=2) + "\n")
+    for file_name, lines in (("rgb.txt", rgb_lines), ("depth.txt", depth_lines), ("groundtruth.txt", gt_lines)):
+        atomic_write(out_dir / file_name, "\n".join(lines) + "\n")
+    return out_dir
