@@ -41,10 +41,10 @@ class RasterSettings:
     whatever the settings, truncation is reported in ``Render.stats``.
     """
 
-    tile_size: int = dataclasses.field(default=8, metadata=dict(static=True))
+    tile_size: int = dataclasses.field(default=4, metadata=dict(static=True))
     tile_capacity: int = dataclasses.field(default=256, metadata=dict(static=True))
     max_contributors: int = dataclasses.field(default=64, metadata=dict(static=True))
-    intersections_per_gaussian: float = dataclasses.field(default=4.0, metadata=dict(static=True))
+    intersections_per_gaussian: float = dataclasses.field(default=8.0, metadata=dict(static=True))
     tiles_per_batch: int = dataclasses.field(default=512, metadata=dict(static=True))
     near: float = 0.2
 

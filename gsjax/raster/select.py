@@ -5,9 +5,9 @@ Each pixel walks its tile's depth-sorted list with SplaTAM's rules: a candidate 
 (that one is not added). Because transmittance only decreases, a candidate is *kept* exactly when it contributes
 and the transmittance after it is still >= 1e-4.
 
-The walk is a ``lax.scan`` over the M list entries, vectorised over all pixels of all tiles (on XLA:CPU a scan
-over the list axis is several times faster than cumulative sums along it). It emits one "kept" bit per (entry,
-pixel); the bits are packed into 32-bit words and the first K set bits of every pixel are extracted with
+The walk is a loop over the M list entries, vectorised over all pixels of all tiles (on XLA:CPU a loop over the
+list axis is several times faster than cumulative sums along it); it ends at the longest list, or as soon as every
+pixel has terminated. It records one "kept" bit per (entry, pixel); the bits are packed into 32-bit words and the first K set bits of every pixel are extracted with
 lowest-set-bit arithmetic, which is far cheaper on CPU than a scatter-based compaction.
 
 Truncation is measured, never silent: a pixel with more than K kept contributors, or whose walk reached the end
@@ -71,12 +71,21 @@ def first_set_bits(words: jax.Array, k: int) -> jax.Array:
     return jax.lax.scan(pop_lowest, words, None, length=k)[1]
 
 
-def _walk(features, ids, pixels, incomplete, k):
-    """Tiles [b]: features [b, M, 6] = (u, v, a, b, c, opacity), ids [b, M], pixels [b, T^2, 2], incomplete [b]."""
+def _walk(features, ids, count, pixels, incomplete, k):
+    """Tiles [b]: features [b, M, 6] = (u, v, a, b, c, opacity), ids [b, M], count [b] list lengths,
+    pixels [b, T^2, 2], incomplete [b]. A while loop over list entries (forward only, no gradient) that stops at
+    the longest list, or earlier once every pixel has terminated."""
     shape = pixels.shape[:2]
+    num_entries = features.shape[1]
+    longest = jnp.minimum(jnp.max(count), num_entries)
 
-    def step(carry, f):
-        log_t, count, log_t_at_k, terminated = carry
+    def cond(state):
+        m, _, _, _, terminated, _ = state
+        return (m < longest) & ~jnp.all(terminated)
+
+    def body(state):
+        m, log_t, count, log_t_at_k, terminated, keep_bits = state
+        f = jax.lax.dynamic_index_in_dim(features, m, axis=1, keepdims=False)  # [b, 6]
         dx = pixels[..., 0] - f[:, None, 0]
         dy = pixels[..., 1] - f[:, None, 1]
         alpha = gaussian_alpha(dx, dy, f[:, None, 2:5], f[:, None, 5])
@@ -85,13 +94,16 @@ def _walk(features, ids, pixels, incomplete, k):
         keep = contributes & (log_t >= _LOG_T_MIN)
         count = count + keep
         log_t_at_k = jnp.where(keep & (count <= k), log_t, log_t_at_k)
-        return (log_t, count, log_t_at_k, terminated | (contributes & ~keep)), keep
+        terminated = terminated | (contributes & ~keep)
+        keep_bits = jax.lax.dynamic_update_index_in_dim(keep_bits, keep, m, axis=0)
+        return m + 1, log_t, count, log_t_at_k, terminated, keep_bits
 
     zeros = jnp.zeros(shape, jnp.float32)
-    init = (zeros, jnp.zeros(shape, jnp.int32), zeros, jnp.zeros(shape, bool))
-    (log_t, count, log_t_at_k, terminated), keep = jax.lax.scan(step, init, jnp.moveaxis(features, 1, 0))
+    init = (jnp.int32(0), zeros, jnp.zeros(shape, jnp.int32), zeros, jnp.zeros(shape, bool),
+            jnp.zeros((num_entries,) + shape, bool))
+    _, log_t, count, log_t_at_k, terminated, keep = jax.lax.while_loop(cond, body, init)
 
-    local = first_set_bits(pack_bits(keep.reshape(keep.shape[0], -1)), k)  # [k, b * T^2]
+    local = first_set_bits(pack_bits(keep.reshape(num_entries, -1)), k)  # [k, b * T^2]
     local = jnp.moveaxis(local.reshape((k,) + shape), 0, -1)  # [b, T^2, k]
     selected = jnp.where(local >= 0, jnp.take_along_axis(ids[:, None, :], jnp.maximum(local, 0), axis=-1), -1)
 
@@ -112,7 +124,7 @@ def select_contributors(
     pad = -ids.shape[1] % _WORD
     ids = jnp.pad(ids, ((0, 0), (0, pad)), constant_values=-1)
     features = jnp.where((ids >= 0)[..., None], table[jnp.maximum(ids, 0)], 0.0)  # [B, M, 6]
-    args = (features, ids, grid.pixel_coords(), tiles.incomplete())
+    args = (features, ids, tiles.count, grid.pixel_coords(), tiles.incomplete())
     batch = min(tiles_per_batch, grid.num_tiles)
     if batch == grid.num_tiles:
         outputs = _walk(*args, k=k)
