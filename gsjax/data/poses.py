@@ -72,36 +72,6 @@ def read_matrix(path: Path, rows: int) -> np.ndarray:
     return np.stack([parse_numbers(line, rows, f"{path}:{n}") for n, line in lines])
 
 
-def quaternion_to_matrix(quat_xyzw: np.ndarray) -> np.ndarray:
-    """Unit quaternions [..., 4] in TUM order (qx, qy, qz, qw) -> rotation matrices [..., 3, 3], float64."""
-    x, y, z, w = np.moveaxis(np.asarray(quat_xyzw, np.float64), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def matrix_to_quaternion(rotation: np.ndarray) -> np.ndarray:
-    """Rotation matrix [3, 3] -> unit quaternion [4] (qx, qy, qz, qw), qw >= 0 (Shepperd's method, float64)."""
-    r = np.asarray(rotation, np.float64)
-    trace = np.trace(r)
-    candidates = np.array(
-        [
-            [r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1], 1.0 + trace],
-            [1.0 + r[0, 0] - r[1, 1] - r[2, 2], r[0, 1] + r[1, 0], r[0, 2] + r[2, 0], r[2, 1] - r[1, 2]],
-            [r[0, 1] + r[1, 0], 1.0 - r[0, 0] + r[1, 1] - r[2, 2], r[1, 2] + r[2, 1], r[0, 2] - r[2, 0]],
-            [r[0, 2] + r[2, 0], r[1, 2] + r[2, 1], 1.0 - r[0, 0] - r[1, 1] + r[2, 2], r[1, 0] - r[0, 1]],
-        ]
-    )
-    q = candidates[np.argmax([trace, r[0, 0], r[1, 1], r[2, 2]])]
-    q = q / np.linalg.norm(q)
-    return -q if q[3] < 0 else q
-
-
 def read_pose_files(paths: list[Path]) -> tuple[np.ndarray, np.ndarray]:
     """One 4x4 camera-to-world text file per frame -> (c2w [N, 4, 4] float64, valid [N] bool).
 

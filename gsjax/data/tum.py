@@ -28,8 +28,9 @@ from gsjax.camera import Intrinsics, make_intrinsics
 from gsjax.data.frame import DatasetError
 from gsjax.data.images import atomic_write, encode_png, image_size
 from gsjax.data.listing import FrameFiles, read_json_numbers
-from gsjax.data.poses import data_lines, matrix_to_quaternion, parse_numbers, quaternion_to_matrix
+from gsjax.data.poses import data_lines, parse_numbers
 from gsjax.data.sequence import Sequence
+from gsjax.io.trajectory import quaternion_wxyz_to_rotation, rotation_to_quaternion_wxyz
 
 DEPTH_SCALE = 5000.0  # raw units per metre
 MAX_TIME_DIFFERENCE = 0.02  # s, for colour-depth and colour-groundtruth association
@@ -138,7 +139,8 @@ def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, n
     nearest = np.where(np.abs(stamps[left] - times) <= np.abs(stamps[right] - times), left, right)
     valid = np.abs(stamps[nearest] - times) <= MAX_TIME_DIFFERENCE
     picked = rows[nearest[valid]]
-    c2w[valid, :3, :3] = quaternion_to_matrix(picked[:, 4:] / np.linalg.norm(picked[:, 4:], axis=-1, keepdims=True))
+    q_xyzw = picked[:, 4:] / np.linalg.norm(picked[:, 4:], axis=-1, keepdims=True)
+    c2w[valid, :3, :3] = quaternion_wxyz_to_rotation(np.roll(q_xyzw, 1, axis=-1))
     c2w[valid, :3, 3] = picked[:, 1:4]
     return c2w, valid
 
@@ -191,8 +193,8 @@ def write_tum(sequence: Sequence, out_dir: Path) -> Path:
         rgb_lines.append(f"{stamp:.6f} rgb/{name}")
         depth_lines.append(f"{stamp:.6f} depth/{name}")
         if valid[i]:
-            t, q = c2w[i, :3, 3], matrix_to_quaternion(c2w[i, :3, :3])
-            gt_lines.append(f"{stamp:.6f} " + " ".join(f"{x:.9f}" for x in (*t, *q)))
+            t, q_xyzw = c2w[i, :3, 3], np.roll(rotation_to_quaternion_wxyz(c2w[i, :3, :3]), -1)
+            gt_lines.append(f"{stamp:.6f} " + " ".join(f"{x:.9f}" for x in (*t, *q_xyzw)))
     k = sequence.intrinsics
     calib = {name: float(getattr(k, name)) for name in ("fx", "fy", "cx", "cy")}
     calib |= {"width": k.width, "height": k.height}
