@@ -9,8 +9,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 
+from gsjax.camera import rigidity_error
 from gsjax.data.frame import DatasetError
 
 # Largest tolerated |R^T R - I|, |det R - 1| or deviation of the last row from (0, 0, 0, 1). Real GT is far
@@ -18,20 +20,12 @@ from gsjax.data.frame import DatasetError
 RIGIDITY_TOLERANCE = 1e-2
 
 
-def rigidity_error(c2w: np.ndarray) -> np.ndarray:
-    """[..., 4, 4] -> [...] max of |R^T R - I|, |det R - 1| and |last row - e4| (0 for a rigid transform)."""
-    rot = c2w[..., :3, :3]
-    ortho = np.abs(np.swapaxes(rot, -1, -2) @ rot - np.eye(3)).max(axis=(-1, -2))
-    det = np.abs(np.linalg.det(rot) - 1.0)
-    last = np.abs(c2w[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1)
-    return np.maximum(np.maximum(ortho, det), last)
-
-
 def check_poses(c2w: np.ndarray, where: list[str]) -> np.ndarray:
     """Validate poses [T, 4, 4] -> valid [T] bool (finite ones); ``where[i]`` names pose i's source in errors."""
     valid = np.all(np.isfinite(c2w), axis=(-1, -2))
-    error = np.where(valid, rigidity_error(np.where(valid[:, None, None], c2w, np.eye(4))), 0.0)
-    bad = np.flatnonzero(error > RIGIDITY_TOLERANCE)
+    # gsjax.camera's check in float32 (ample against the tolerance); missing poses are checked as the identity.
+    error = np.asarray(rigidity_error(jnp.asarray(np.where(valid[:, None, None], c2w, np.eye(4)), jnp.float32)))
+    bad = np.flatnonzero(~(error <= RIGIDITY_TOLERANCE))  # NaN (entries beyond float32) is bad too
     if bad.size:
         i = int(bad[0])
         raise DatasetError(
