@@ -99,5 +99,5 @@ def save_depth_png(path: str | os.PathLike, depth, scale: float = 1000.0) -> Pat
     valid = _valid_depth(depth)
     counts = np.round(np.where(valid, depth, 0.0) * scale)
     if counts.max(initial=0) > 65535:
-        raise ValueError(f"depth up to {depth[valid].max():.3f} m does not fit a 16-bit PNG at scale {scale}")
+        raise ValueError(f"{path}: depth up to {depth[valid].max():.3f} m does not fit a 16-bit PNG at scale {scale}")
     return atomic_write_bytes(path, _encode_png(counts.astype(np.uint16)))
