@@ -29,6 +29,7 @@ from gsjax.data.images import image_size
 from gsjax.data.listing import FrameFiles, read_json_numbers
 from gsjax.data.poses import data_lines, parse_numbers
 from gsjax.data.sequence import Sequence
+from gsjax.eval.association import associate_timestamps
 from gsjax.io.atomic import atomic_write_json, atomic_write_text
 from gsjax.io.trajectory import quaternion_wxyz_to_rotation, write_tum_trajectory
 
@@ -81,7 +82,12 @@ def list_tum(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
 
 def associate(first: np.ndarray, second: np.ndarray, max_difference: float) -> tuple[np.ndarray, np.ndarray]:
     """One-to-one pairs (i, j) with |first[i] - second[j]| <= max_difference, chosen greedily by smallest
-    difference (TUM's associate.py) -> (i [P], j [P]) sorted by i."""
+    difference (TUM's associate.py) -> (i [P], j [P]) sorted by i.
+
+    For colour/depth pairing: two streams at the same rate, where each image may be used once, so a colour frame
+    loses its nearest depth image to a nearer colour frame (and then takes the next free one or none). Not
+    :func:`gsjax.eval.association.associate_timestamps`, the nearest-neighbour rule for poses, under which two
+    colour frames could share one depth image."""
     order = np.argsort(second)
     sorted_second = second[order]
     candidates = []
@@ -119,7 +125,11 @@ def _read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
 
 def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Nearest groundtruth pose within the tolerance for each time -> (c2w [T, 4, 4], valid [T]); all invalid
-    when ``groundtruth.txt`` is absent (TUM's test sequences have none). Non-finite samples are ignored."""
+    when ``groundtruth.txt`` is absent (TUM's test sequences have none). Non-finite samples are ignored.
+
+    Nearest neighbour, the rule of trajectory evaluation (:func:`gsjax.eval.association.associate_timestamps`), not
+    :func:`associate`'s one-to-one matching: GT is sampled far faster than the frames (100 Hz vs 30 Hz), so each
+    frame simply takes its nearest sample."""
     c2w, valid = np.tile(np.eye(4), (times.size, 1, 1)), np.zeros(times.size, bool)
     lines = data_lines(path) if path.exists() else []
     rows = np.stack([parse_numbers(line, 8, f"{path}:{n}") for n, line in lines]) if lines else np.zeros((0, 8))
@@ -130,18 +140,12 @@ def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, n
         norm = quat_norm[bad[0]]
         raise DatasetError(f"{path}:{n}: pose is not a rigid transform (quaternion norm {norm:.4g}, not 1)")
     rows = rows[np.isfinite(rows).all(axis=-1)]
-    if not rows.size:
-        return c2w, valid
-    rows = rows[np.argsort(rows[:, 0])]
-    stamps = rows[:, 0]
-    after = np.searchsorted(stamps, times)
-    left, right = np.clip(after - 1, 0, stamps.size - 1), np.clip(after, 0, stamps.size - 1)
-    nearest = np.where(np.abs(stamps[left] - times) <= np.abs(stamps[right] - times), left, right)
-    valid = np.abs(stamps[nearest] - times) <= MAX_TIME_DIFFERENCE
-    picked = rows[nearest[valid]]
+    frame_idx, row_idx = associate_timestamps(times, rows[:, 0], MAX_TIME_DIFFERENCE)
+    picked = rows[row_idx]
     q_xyzw = picked[:, 4:] / np.linalg.norm(picked[:, 4:], axis=-1, keepdims=True)
-    c2w[valid, :3, :3] = quaternion_wxyz_to_rotation(np.roll(q_xyzw, 1, axis=-1))
-    c2w[valid, :3, 3] = picked[:, 1:4]
+    c2w[frame_idx, :3, :3] = quaternion_wxyz_to_rotation(np.roll(q_xyzw, 1, axis=-1))
+    c2w[frame_idx, :3, 3] = picked[:, 1:4]
+    valid[frame_idx] = True
     return c2w, valid
 
 
