@@ -253,9 +253,10 @@ def constant_velocity(w2c_prev2: jax.Array, w2c_prev1: jax.Array) -> jax.Array:
 
 
 def rigidity_error(transform: jax.Array) -> jax.Array:
-    """How far a 4x4 matrix is from a rigid transform: max of |R^T R - I|, |det R - 1| and |last row - e4|."""
-    rot = transform[:3, :3]
-    ortho = jnp.max(jnp.abs(rot.T @ rot - jnp.eye(3, dtype=transform.dtype)))
+    """How far 4x4 matrices [..., 4, 4] are from rigid transforms -> [...]: max of |R^T R - I|, |det R - 1| and
+    |last row - e4| (0 for a rigid transform). Used by the renderer on w2c and by the dataset readers on GT poses."""
+    rot = transform[..., :3, :3]
+    ortho = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=transform.dtype)), axis=(-1, -2))
     det = jnp.abs(jnp.linalg.det(rot) - 1.0)
-    last = jnp.max(jnp.abs(transform[3] - jnp.array([0.0, 0.0, 0.0, 1.0], dtype=transform.dtype)))
+    last = jnp.max(jnp.abs(transform[..., 3, :] - jnp.array([0.0, 0.0, 0.0, 1.0], dtype=transform.dtype)), axis=-1)
     return jnp.maximum(jnp.maximum(ortho, det), last)

@@ -7,6 +7,7 @@ the layout's own conventions (names, depth units, pose format), independently of
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -16,6 +17,12 @@ from gsjax.camera import make_intrinsics
 from gsjax.data.synthetic import camera_trajectory, render_view
 
 HEIGHT, WIDTH = 24, 32
+
+
+def shared_data() -> Path:
+    """The real sequences of ../shared/data (or $GSJAX_SHARED_DATA); tests using them skip when they are absent."""
+    env = os.environ.get("GSJAX_SHARED_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 
 
 def tiny_scene(count: int = 3, height: int = HEIGHT, width: int = WIDTH, step: float = 0.1):

@@ -1,15 +1,14 @@
-"""Image helpers: channel order, depth units and invalid values, the downscaling rules, atomic writes."""
+"""Image reading: channel order, depth units and invalid values, the downscaling rules."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
-import pytest
 
 from data_fixtures import tiny_scene, write_sevenscenes
 from gsjax.camera import make_intrinsics, project_points
 from gsjax.data import open_sequence
-from gsjax.data.images import atomic_write, downscale_color, downscale_depth, read_color, read_depth
+from gsjax.data.images import downscale_color, downscale_depth, read_color, read_depth
 from gsjax.data.synthetic import render_view
 
 
@@ -81,19 +80,3 @@ def test_downscaled_frames_keep_sizes_intrinsics_and_geometry_consistent(tmp_pat
     error, naive_error = np.median(np.abs(got - exact)), np.median(np.abs(got - shifted))
     assert error < 1e-3 and naive_error > 10 * error
 
-
-def test_atomic_write_replaces_the_file_and_leaves_no_temporary(tmp_path):
-    target = tmp_path / "a.txt"
-    target.write_text("old")
-    atomic_write(target, "new")
-    assert target.read_text() == "new"
-    assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]
-
-
-def test_atomic_write_keeps_the_old_file_when_writing_fails(tmp_path):
-    target = tmp_path / "a.txt"
-    target.write_text("old")
-    with pytest.raises(TypeError):
-        atomic_write(target, 12345)  # not bytes or str
-    assert target.read_text() == "old"
-    assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]

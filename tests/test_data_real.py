@@ -6,22 +6,14 @@ shown by reprojecting one frame's depth into a later frame.
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from data_fixtures import shared_data
 from gsjax.data import open_sequence
 
-
-def _shared_data() -> Path:
-    env = os.environ.get("GSJAX_SHARED_DATA")
-    return Path(env) if env else Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
-
-
-SEVENSCENES = _shared_data() / "7scenes_redkitchen"
-REPLICA = _shared_data() / "replica_office0_mini" / "office0"
+SEVENSCENES = shared_data() / "7scenes_redkitchen"
+REPLICA = shared_data() / "replica_office0_mini" / "office0"
 needs_7scenes = pytest.mark.skipif(not SEVENSCENES.is_dir(), reason=f"{SEVENSCENES} not present")
 needs_replica = pytest.mark.skipif(not REPLICA.is_dir(), reason=f"{REPLICA} not present")
 

@@ -22,21 +22,13 @@ from gsjax.eval.trajectory import (
     rpe,
     umeyama_alignment,
 )
+from gsjax.io.trajectory import quaternion_wxyz_to_rotation
 
 
 
 def random_rotation(rng, n=None):
     q = rng.standard_normal((4,) if n is None else (n, 4))
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+    return quaternion_wxyz_to_rotation(q / np.linalg.norm(q, axis=-1, keepdims=True))
 
 
 def axis_rotation(axis, angle):

@@ -20,6 +20,15 @@ def test_atomic_write_replaces_the_content_and_leaves_no_temp_file(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.txt"]
 
 
+def test_a_write_that_fails_midway_keeps_the_old_file_and_leaves_no_temp_file(tmp_path):
+    target = tmp_path / "a.txt"
+    target.write_text("old")
+    with pytest.raises(TypeError):
+        atomic_write_bytes(target, 12345)  # not bytes: fails inside the write
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]
+
+
 @pytest.mark.parametrize("failing", ["replace", "fsync"])
 def test_a_failed_write_leaves_the_old_file_intact(tmp_path, monkeypatch, failing):
     target = tmp_path / "metrics.json"

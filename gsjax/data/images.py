@@ -1,4 +1,4 @@
-"""Image I/O shared by every reader and writer: loading with validation, integer downscaling, atomic PNG writes.
+"""Image reading shared by every reader: loading with validation and integer downscaling (writing: gsjax.io.images).
 
 Conventions: colour is returned as float32 RGB in [0, 1] (OpenCV reads BGR; converted here); depth as float32
 metres, raw value / ``depth_scale``, with 0 for invalid pixels. Every error is a :class:`DatasetError` naming
@@ -15,8 +15,6 @@ Downscaling by an integer factor f (sizes floored, trailing rows/columns dropped
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -115,30 +113,6 @@ def downscale_depth(depth: np.ndarray, factor: int) -> np.ndarray:
     hi = np.take_along_axis(ordered, (count // 2)[..., None], axis=-1)[..., 0]
     enough = 2 * count >= factor * factor
     return np.where(enough, 0.5 * (lo + hi), 0.0).astype(depth.dtype)
-
-
-def encode_png(image: np.ndarray, path: Path) -> bytes:
-    """PNG bytes of a uint8 RGB [H, W, 3] image (written as BGR, as OpenCV expects) or a uint16 [H, W] image."""
-    if image.ndim == 3:
-        image = np.ascontiguousarray(image[:, :, ::-1])
-    ok, buf = cv2.imencode(".png", image)
-    if not ok:
-        raise OSError(f"{path}: PNG encoding failed")
-    return buf.tobytes()
-
-
-def atomic_write(path: Path, data: bytes | str) -> None:
-    """Write ``data`` to ``path`` atomically: a temporary file in the same directory, then ``os.replace``."""
-    path = Path(path)
-    payload = data.encode() if isinstance(data, str) else data
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(payload)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _imread(path: Path, flags: int, what: str) -> np.ndarray:

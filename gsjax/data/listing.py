@@ -18,6 +18,7 @@ import numpy as np
 from gsjax.camera import Intrinsics, make_intrinsics
 from gsjax.data.frame import DatasetError
 from gsjax.data.images import load_rgbd
+from gsjax.data.poses import read_pose_files
 from gsjax.data.sequence import Sequence
 
 
@@ -105,8 +106,9 @@ def sequence_from_files(
     )
 
 
-def numbered_files(directory: Path, pattern: str) -> dict[int, Path]:
-    """Files in ``directory`` whose name fully matches ``pattern`` (one group: the frame number) -> {number: path}."""
+def numbered_files(directory: Path, pattern: str, expected: str) -> dict[int, Path]:
+    """Files in ``directory`` whose name fully matches ``pattern`` (one group: the frame number) -> {number: path},
+    sorted by number. DatasetError when there is none (the message names ``expected``, e.g. "frameNNNNNN.jpg")."""
     regex = re.compile(pattern)
     if not directory.is_dir():
         raise DatasetError(f"{directory}: directory is missing")
@@ -118,7 +120,35 @@ def numbered_files(directory: Path, pattern: str) -> dict[int, Path]:
             if number in found:
                 raise DatasetError(f"{directory}: two files for frame {number}: {found[number].name}, {path.name}")
             found[number] = path
+    if not found:
+        raise DatasetError(f"{directory}: empty sequence (no {expected})")
     return dict(sorted(found.items()))
+
+
+def files_per_frame(
+    name: str,
+    colors: dict[int, Path],
+    depth_paths: list[Path],
+    pose_paths: list[Path],
+    intrinsics: Intrinsics,
+    depth_scale: float,
+    **options,
+) -> FrameFiles:
+    """The listing of a layout with one colour, depth and pose file per frame, found by frame number (ScanNet,
+    7-Scenes): ``colors`` from :func:`numbered_files`; the timestamp of a frame is its number; a missing pose file
+    flags its frame's pose invalid. ``options``: the other :class:`FrameFiles` fields."""
+    c2w, valid = read_pose_files(pose_paths)
+    return FrameFiles(
+        name=name,
+        color_paths=list(colors.values()),
+        depth_paths=depth_paths,
+        timestamps=np.array(list(colors), np.float64),
+        c2w=c2w,
+        pose_valid=valid,
+        intrinsics=intrinsics,
+        depth_scale=depth_scale,
+        **options,
+    )
 
 
 def intrinsics_from_matrix(k: np.ndarray, height: int, width: int, where: Path) -> Intrinsics:

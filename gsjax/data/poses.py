@@ -9,8 +9,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 
+from gsjax.camera import rigidity_error
 from gsjax.data.frame import DatasetError
 
 # Largest tolerated |R^T R - I|, |det R - 1| or deviation of the last row from (0, 0, 0, 1). Real GT is far
@@ -18,20 +20,12 @@ from gsjax.data.frame import DatasetError
 RIGIDITY_TOLERANCE = 1e-2
 
 
-def rigidity_error(c2w: np.ndarray) -> np.ndarray:
-    """[..., 4, 4] -> [...] max of |R^T R - I|, |det R - 1| and |last row - e4| (0 for a rigid transform)."""
-    rot = c2w[..., :3, :3]
-    ortho = np.abs(np.swapaxes(rot, -1, -2) @ rot - np.eye(3)).max(axis=(-1, -2))
-    det = np.abs(np.linalg.det(rot) - 1.0)
-    last = np.abs(c2w[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=-1)
-    return np.maximum(np.maximum(ortho, det), last)
-
-
 def check_poses(c2w: np.ndarray, where: list[str]) -> np.ndarray:
     """Validate poses [T, 4, 4] -> valid [T] bool (finite ones); ``where[i]`` names pose i's source in errors."""
     valid = np.all(np.isfinite(c2w), axis=(-1, -2))
-    error = np.where(valid, rigidity_error(np.where(valid[:, None, None], c2w, np.eye(4))), 0.0)
-    bad = np.flatnonzero(error > RIGIDITY_TOLERANCE)
+    # gsjax.camera's check in float32 (ample against the tolerance); missing poses are checked as the identity.
+    error = np.asarray(rigidity_error(jnp.asarray(np.where(valid[:, None, None], c2w, np.eye(4)), jnp.float32)))
+    bad = np.flatnonzero(~(error <= RIGIDITY_TOLERANCE))  # NaN (entries beyond float32) is bad too
     if bad.size:
         i = int(bad[0])
         raise DatasetError(
@@ -70,36 +64,6 @@ def read_matrix(path: Path, rows: int) -> np.ndarray:
     if len(lines) != rows:
         raise DatasetError(f"{path}: expected a {rows}x{rows} matrix ({rows} lines), got {len(lines)} lines")
     return np.stack([parse_numbers(line, rows, f"{path}:{n}") for n, line in lines])
-
-
-def quaternion_to_matrix(quat_xyzw: np.ndarray) -> np.ndarray:
-    """Unit quaternions [..., 4] in TUM order (qx, qy, qz, qw) -> rotation matrices [..., 3, 3], float64."""
-    x, y, z, w = np.moveaxis(np.asarray(quat_xyzw, np.float64), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def matrix_to_quaternion(rotation: np.ndarray) -> np.ndarray:
-    """Rotation matrix [3, 3] -> unit quaternion [4] (qx, qy, qz, qw), qw >= 0 (Shepperd's method, float64)."""
-    r = np.asarray(rotation, np.float64)
-    trace = np.trace(r)
-    candidates = np.array(
-        [
-            [r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1], 1.0 + trace],
-            [1.0 + r[0, 0] - r[1, 1] - r[2, 2], r[0, 1] + r[1, 0], r[0, 2] + r[2, 0], r[2, 1] - r[1, 2]],
-            [r[0, 1] + r[1, 0], 1.0 - r[0, 0] + r[1, 1] - r[2, 2], r[1, 2] + r[2, 1], r[0, 2] - r[2, 0]],
-            [r[0, 2] + r[2, 0], r[1, 2] + r[2, 1], 1.0 - r[0, 0] - r[1, 1] + r[2, 2], r[1, 0] - r[0, 1]],
-        ]
-    )
-    q = candidates[np.argmax([trace, r[0, 0], r[1, 1], r[2, 2]])]
-    q = q / np.linalg.norm(q)
-    return -q if q[3] < 0 else q
 
 
 def read_pose_files(paths: list[Path]) -> tuple[np.ndarray, np.ndarray]:

@@ -24,9 +24,7 @@ DEFAULT_CAMERA = {"w": 1200, "h": 680, "fx": 600.0, "fy": 600.0, "cx": 599.5, "c
 def list_replica(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
     """List a NICE-SLAM Replica scene directory (the one holding ``results/`` and ``traj.txt``)."""
     path = Path(path)
-    colors = numbered_files(path / "results", r"frame(\d+)\.(?:jpg|png)")
-    if not colors:
-        raise DatasetError(f"{path / 'results'}: empty sequence (no frameNNNNNN.jpg)")
+    colors = numbered_files(path / "results", r"frame(\d+)\.(?:jpg|png)", "frameNNNNNN.jpg")
     numbers = np.array(list(colors), np.int64)
     c2w, valid = read_pose_lines(path / "traj.txt", int(numbers.max()) + 1)
     camera = dict(DEFAULT_CAMERA)

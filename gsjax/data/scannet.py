@@ -11,13 +11,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from gsjax.camera import Intrinsics
 from gsjax.data.frame import DatasetError
 from gsjax.data.images import image_size
-from gsjax.data.listing import FrameFiles, intrinsics_from_matrix, numbered_files
-from gsjax.data.poses import read_matrix, read_pose_files
+from gsjax.data.listing import FrameFiles, files_per_frame, intrinsics_from_matrix, numbered_files
+from gsjax.data.poses import read_matrix
 
 DEPTH_SCALE = 1000.0  # raw units per metre
 
@@ -25,25 +23,13 @@ DEPTH_SCALE = 1000.0  # raw units per metre
 def list_scannet(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
     """List a ScanNet scene export directory (holding ``color/``, ``depth/``, ``pose/``, ``intrinsic/``)."""
     path = Path(path)
-    colors = numbered_files(path / "color", r"(\d+)\.(?:jpg|png)")
-    if not colors:
-        raise DatasetError(f"{path / 'color'}: empty sequence (no N.jpg)")
+    colors = numbered_files(path / "color", r"(\d+)\.(?:jpg|png)", "N.jpg")
     stems = [p.stem for p in colors.values()]
     depth_paths = [path / "depth" / f"{stem}.png" for stem in stems]
-    c2w, valid = read_pose_files([path / "pose" / f"{stem}.txt" for stem in stems])
     if intrinsics is None:
         intrinsics = _scannet_intrinsics(path / "intrinsic", depth_paths[0], next(iter(colors.values())))
-    return FrameFiles(
-        name=path.name,
-        color_paths=list(colors.values()),
-        depth_paths=depth_paths,
-        timestamps=np.array(list(colors), np.float64),
-        c2w=c2w,
-        pose_valid=valid,
-        intrinsics=intrinsics,
-        depth_scale=DEPTH_SCALE,
-        resize_color=True,
-    )
+    pose_paths = [path / "pose" / f"{stem}.txt" for stem in stems]
+    return files_per_frame(path.name, colors, depth_paths, pose_paths, intrinsics, DEPTH_SCALE, resize_color=True)
 
 
 def _scannet_intrinsics(directory: Path, first_depth: Path, first_color: Path) -> Intrinsics:

@@ -11,13 +11,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from gsjax.camera import Intrinsics, make_intrinsics
-from gsjax.data.frame import DatasetError
 from gsjax.data.images import image_size
-from gsjax.data.listing import FrameFiles, intrinsics_from_matrix, numbered_files
-from gsjax.data.poses import read_matrix, read_pose_files
+from gsjax.data.listing import FrameFiles, files_per_frame, intrinsics_from_matrix, numbered_files
+from gsjax.data.poses import read_matrix
 
 DEPTH_SCALE = 1000.0  # raw units per metre
 INVALID_RAW = (0, 65535)
@@ -27,12 +24,9 @@ NOMINAL_K = (585.0, 585.0, 320.0, 240.0)  # fx, fy, cx, cy
 def list_sevenscenes(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
     """List a directory of 7-Scenes frames (one ``seq-XX`` folder, or a 3DMatch ``data/`` folder)."""
     path = Path(path)
-    colors = numbered_files(path, r"frame-(\d+)\.color\.(?:jpg|png)")
-    if not colors:
-        raise DatasetError(f"{path}: empty sequence (no frame-NNNNNN.color.jpg/png)")
+    colors = numbered_files(path, r"frame-(\d+)\.color\.(?:jpg|png)", "frame-NNNNNN.color.jpg/png")
     stems = [p.name.split(".")[0] for p in colors.values()]
     depth_paths = [path / f"{stem}.depth.png" for stem in stems]
-    c2w, valid = read_pose_files([path / f"{stem}.pose.txt" for stem in stems])
     if intrinsics is None:
         size = image_size(depth_paths[0])
         k_path = path / "camera-intrinsics.txt"
@@ -40,14 +34,5 @@ def list_sevenscenes(path: Path, intrinsics: Intrinsics | None = None) -> FrameF
             intrinsics = intrinsics_from_matrix(read_matrix(k_path, 3), *size, where=k_path)
         else:
             intrinsics = make_intrinsics(*NOMINAL_K, *size)
-    return FrameFiles(
-        name=path.name,
-        color_paths=list(colors.values()),
-        depth_paths=depth_paths,
-        timestamps=np.array(list(colors), np.float64),
-        c2w=c2w,
-        pose_valid=valid,
-        intrinsics=intrinsics,
-        depth_scale=DEPTH_SCALE,
-        invalid_raw=INVALID_RAW,
-    )
+    pose_paths = [path / f"{stem}.pose.txt" for stem in stems]
+    return files_per_frame(path.name, colors, depth_paths, pose_paths, intrinsics, DEPTH_SCALE, invalid_raw=INVALID_RAW)

@@ -17,7 +17,6 @@ directory (``freiburg1``/``fr1``... in its name or its parent's), with the value
 
 from __future__ import annotations
 
-import json
 import re
 import warnings
 from pathlib import Path
@@ -26,10 +25,13 @@ import numpy as np
 
 from gsjax.camera import Intrinsics, make_intrinsics
 from gsjax.data.frame import DatasetError
-from gsjax.data.images import atomic_write, encode_png, image_size
+from gsjax.data.images import image_size
 from gsjax.data.listing import FrameFiles, read_json_numbers
-from gsjax.data.poses import data_lines, matrix_to_quaternion, parse_numbers, quaternion_to_matrix
+from gsjax.data.poses import data_lines, parse_numbers
 from gsjax.data.sequence import Sequence
+from gsjax.eval.association import associate_timestamps
+from gsjax.io.atomic import atomic_write_json, atomic_write_text
+from gsjax.io.trajectory import quaternion_wxyz_to_rotation, write_tum_trajectory
 
 DEPTH_SCALE = 5000.0  # raw units per metre
 MAX_TIME_DIFFERENCE = 0.02  # s, for colour-depth and colour-groundtruth association
@@ -80,7 +82,12 @@ def list_tum(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
 
 def associate(first: np.ndarray, second: np.ndarray, max_difference: float) -> tuple[np.ndarray, np.ndarray]:
     """One-to-one pairs (i, j) with |first[i] - second[j]| <= max_difference, chosen greedily by smallest
-    difference (TUM's associate.py) -> (i [P], j [P]) sorted by i."""
+    difference (TUM's associate.py) -> (i [P], j [P]) sorted by i.
+
+    For colour/depth pairing: two streams at the same rate, where each image may be used once, so a colour frame
+    loses its nearest depth image to a nearer colour frame (and then takes the next free one or none). Not
+    :func:`gsjax.eval.association.associate_timestamps`, the nearest-neighbour rule for poses, under which two
+    colour frames could share one depth image."""
     order = np.argsort(second)
     sorted_second = second[order]
     candidates = []
@@ -118,7 +125,11 @@ def _read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
 
 def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Nearest groundtruth pose within the tolerance for each time -> (c2w [T, 4, 4], valid [T]); all invalid
-    when ``groundtruth.txt`` is absent (TUM's test sequences have none). Non-finite samples are ignored."""
+    when ``groundtruth.txt`` is absent (TUM's test sequences have none). Non-finite samples are ignored.
+
+    Nearest neighbour, the rule of trajectory evaluation (:func:`gsjax.eval.association.associate_timestamps`), not
+    :func:`associate`'s one-to-one matching: GT is sampled far faster than the frames (100 Hz vs 30 Hz), so each
+    frame simply takes its nearest sample."""
     c2w, valid = np.tile(np.eye(4), (times.size, 1, 1)), np.zeros(times.size, bool)
     lines = data_lines(path) if path.exists() else []
     rows = np.stack([parse_numbers(line, 8, f"{path}:{n}") for n, line in lines]) if lines else np.zeros((0, 8))
@@ -129,17 +140,12 @@ def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, n
         norm = quat_norm[bad[0]]
         raise DatasetError(f"{path}:{n}: pose is not a rigid transform (quaternion norm {norm:.4g}, not 1)")
     rows = rows[np.isfinite(rows).all(axis=-1)]
-    if not rows.size:
-        return c2w, valid
-    rows = rows[np.argsort(rows[:, 0])]
-    stamps = rows[:, 0]
-    after = np.searchsorted(stamps, times)
-    left, right = np.clip(after - 1, 0, stamps.size - 1), np.clip(after, 0, stamps.size - 1)
-    nearest = np.where(np.abs(stamps[left] - times) <= np.abs(stamps[right] - times), left, right)
-    valid = np.abs(stamps[nearest] - times) <= MAX_TIME_DIFFERENCE
-    picked = rows[nearest[valid]]
-    c2w[valid, :3, :3] = quaternion_to_matrix(picked[:, 4:] / np.linalg.norm(picked[:, 4:], axis=-1, keepdims=True))
-    c2w[valid, :3, 3] = picked[:, 1:4]
+    frame_idx, row_idx = associate_timestamps(times, rows[:, 0], MAX_TIME_DIFFERENCE)
+    picked = rows[row_idx]
+    q_xyzw = picked[:, 4:] / np.linalg.norm(picked[:, 4:], axis=-1, keepdims=True)
+    c2w[frame_idx, :3, :3] = quaternion_wxyz_to_rotation(np.roll(q_xyzw, 1, axis=-1))
+    c2w[frame_idx, :3, 3] = picked[:, 1:4]
+    valid[frame_idx] = True
     return c2w, valid
 
 
@@ -169,34 +175,30 @@ def write_tum(sequence: Sequence, out_dir: Path) -> Path:
     """Write a sequence in the TUM RGB-D layout that :func:`list_tum` reads back; returns ``out_dir``.
 
     Colour as 8-bit PNG (rounded), depth as 16-bit PNG with 5000 units per metre (rounded; depths beyond
-    65535 / 5000 = 13.1 m are an error), ``groundtruth.txt`` for the frames with a valid pose, and
+    65535 / 5000 = 13.1 m are an error), ``groundtruth.txt`` (:func:`gsjax.io.trajectory.write_tum_trajectory`)
+    with a line for each frame with a valid pose only (a missing pose has no line, as in TUM's own files), and
     ``intrinsics.json`` (fx, fy, cx, cy, width, height). Every file is written atomically.
     """
+    from gsjax.io.images import save_color_png, save_depth_png  # imported here: it pulls in matplotlib
+
     out_dir = Path(out_dir)
     (out_dir / "rgb").mkdir(parents=True, exist_ok=True)
     (out_dir / "depth").mkdir(parents=True, exist_ok=True)
     times, c2w, valid = sequence.gt_trajectory()
     rgb_lines = ["# color images", f"# file: '{sequence.name}'", "# timestamp filename"]
     depth_lines = ["# depth maps", f"# file: '{sequence.name}'", "# timestamp filename"]
-    gt_lines = ["# ground truth trajectory", f"# file: '{sequence.name}'", "# timestamp tx ty tz qx qy qz qw"]
     for i, stamp in enumerate(times):
         frame = sequence.read_host(i)
         name = f"{stamp:.6f}.png"
-        raw_depth = np.round(frame.depth.astype(np.float64) * DEPTH_SCALE)
-        if raw_depth.max(initial=0.0) > np.iinfo(np.uint16).max:
-            raise ValueError(f"frame {i}: depth {frame.depth.max():.2f} m exceeds what 16-bit TUM depth can hold")
-        rgb8 = np.round(np.clip(frame.color, 0.0, 1.0) * 255.0).astype(np.uint8)
-        atomic_write(out_dir / "rgb" / name, encode_png(rgb8, out_dir / "rgb" / name))
-        atomic_write(out_dir / "depth" / name, encode_png(raw_depth.astype(np.uint16), out_dir / "depth" / name))
+        save_depth_png(out_dir / "depth" / name, frame.depth, scale=DEPTH_SCALE)
+        save_color_png(out_dir / "rgb" / name, frame.color)
         rgb_lines.append(f"{stamp:.6f} rgb/{name}")
         depth_lines.append(f"{stamp:.6f} depth/{name}")
-        if valid[i]:
-            t, q = c2w[i, :3, 3], matrix_to_quaternion(c2w[i, :3, :3])
-            gt_lines.append(f"{stamp:.6f} " + " ".join(f"{x:.9f}" for x in (*t, *q)))
     k = sequence.intrinsics
     calib = {name: float(getattr(k, name)) for name in ("fx", "fy", "cx", "cy")}
     calib |= {"width": k.width, "height": k.height}
-    atomic_write(out_dir / "intrinsics.json", json.dumps(calib, indent=2) + "\n")
-    for file_name, lines in (("rgb.txt", rgb_lines), ("depth.txt", depth_lines), ("groundtruth.txt", gt_lines)):
-        atomic_write(out_dir / file_name, "\n".join(lines) + "\n")
+    atomic_write_json(out_dir / "intrinsics.json", calib)
+    for file_name, lines in (("rgb.txt", rgb_lines), ("depth.txt", depth_lines)):
+        atomic_write_text(out_dir / file_name, "\n".join(lines) + "\n")
+    write_tum_trajectory(out_dir / "groundtruth.txt", times[valid], c2w[valid])
     return out_dir

@@ -10,7 +10,10 @@ def associate_timestamps(est_timestamps, gt_timestamps, max_dt: float = 0.02) ->
 
     This is evo's nearest-time association when the estimate is the shorter (or equally long) trajectory, the
     usual case: each estimated pose is used at most once, ties go to the earlier GT stamp, and estimated poses
-    without a GT stamp within ``max_dt`` are dropped. The GT stamps need not be sorted.
+    without a GT stamp within ``max_dt`` are dropped. The GT stamps need not be sorted. A GT stamp may serve several
+    estimated poses: GT is usually sampled faster than the frames, and a pose's error must not depend on which
+    other poses exist. (The TUM reader uses this rule for its GT too; for pairing colour with depth images, each
+    to be used once, it uses TUM associate.py's greedy one-to-one matching, :func:`gsjax.data.tum.associate`.)
 
     Args:
       est_timestamps: [N] seconds.

@@ -24,8 +24,17 @@ def to_uint8(color) -> np.ndarray:
     return np.round(np.clip(np.nan_to_num(color), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def _valid_depth(depth: np.ndarray) -> np.ndarray:
-    return np.isfinite(depth) & (depth > 0)
+def _depth_and_valid(depth) -> tuple[np.ndarray, np.ndarray]:
+    """(depth [H, W] float64 m, valid [H, W] bool: finite and > 0); ValueError for another shape."""
+    depth = np.asarray(depth, np.float64)
+    if depth.ndim != 2:
+        raise ValueError(f"depth image must have shape [H, W], got {list(depth.shape)}")
+    return depth, np.isfinite(depth) & (depth > 0)
+
+
+def _percentile_range(depth: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
+    """1st and 99th percentile of the valid depths (m), or (0, 1) when none is valid."""
+    return tuple(np.percentile(depth[valid], [1, 99])) if valid.any() else (0.0, 1.0)
 
 
 def colorize_depth(depth, vmin: float | None = None, vmax: float | None = None, cmap: str = "turbo") -> np.ndarray:
@@ -33,12 +42,9 @@ def colorize_depth(depth, vmin: float | None = None, vmax: float | None = None, 
 
     The range defaults to the 1st-99th percentile of the valid depths (so one outlier does not wash the image out).
     """
-    depth = np.asarray(depth, np.float64)
-    if depth.ndim != 2:
-        raise ValueError(f"depth image must have shape [H, W], got {list(depth.shape)}")
-    valid = _valid_depth(depth)
+    depth, valid = _depth_and_valid(depth)
     if vmin is None or vmax is None:
-        lo, hi = np.percentile(depth[valid], [1, 99]) if valid.any() else (0.0, 1.0)
+        lo, hi = _percentile_range(depth, valid)
         vmin = lo if vmin is None else vmin
         vmax = hi if vmax is None else vmax
     scaled = np.clip((np.where(valid, depth, vmin) - vmin) / max(vmax - vmin, 1e-12), 0.0, 1.0)
@@ -55,9 +61,7 @@ def render_panel(color, color_gt, depth=None, depth_gt=None, gap: int = 4) -> np
     if (depth is None) != (depth_gt is None):
         raise ValueError("give both depth and depth_gt, or neither")
     if depth is not None:
-        depth_gt = np.asarray(depth_gt, np.float64)
-        valid = _valid_depth(depth_gt)
-        lo, hi = np.percentile(depth_gt[valid], [1, 99]) if valid.any() else (0.0, 1.0)
+        lo, hi = _percentile_range(*_depth_and_valid(depth_gt))
         tiles.append([colorize_depth(depth, lo, hi), colorize_depth(depth_gt, lo, hi)])
     h, w, _ = tiles[0][0].shape
     rows, cols = len(tiles), 2
@@ -93,11 +97,8 @@ def save_color_png(path: str | os.PathLike, color) -> Path:
 def save_depth_png(path: str | os.PathLike, depth, scale: float = 1000.0) -> Path:
     """Write depth [H, W] (m) as a 16-bit PNG holding ``round(depth * scale)`` (1000: mm; TUM uses 5000), invalid
     pixels as 0, atomically. Raises ValueError if a valid depth does not fit in 16 bits at this scale."""
-    depth = np.asarray(depth, np.float64)
-    if depth.ndim != 2:
-        raise ValueError(f"depth image must have shape [H, W], got {list(depth.shape)}")
-    valid = _valid_depth(depth)
+    depth, valid = _depth_and_valid(depth)
     counts = np.round(np.where(valid, depth, 0.0) * scale)
     if counts.max(initial=0) > 65535:
-        raise ValueError(f"depth up to {depth[valid].max():.3f} m does not fit a 16-bit PNG at scale {scale}")
+        raise ValueError(f"{path}: depth up to {depth[valid].max():.3f} m does not fit a 16-bit PNG at scale {scale}")
     return atomic_write_bytes(path, _encode_png(counts.astype(np.uint16)))
