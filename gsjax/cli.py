@@ -54,8 +54,8 @@ def _read_ground_truth(gt: Path, dataset: str | None):
     if gt.is_dir():
         if dataset is None:
             raise UserError(
-                f"--gt {gt} is a directory: --gt DIR needs --dataset; not yet supported: guessing a directory's "
-                f"layout. Give --dataset {{{','.join(DATASETS)}}}, or a TUM trajectory file"
+                f"--gt {gt} is a directory: --gt DIR needs --dataset {{{','.join(DATASETS)}}} "
+                f"(the layout is not guessed), or give a TUM trajectory file"
             )
         from gsjax.data import open_sequence
 

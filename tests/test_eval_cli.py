@@ -54,7 +54,7 @@ def test_eval_with_a_gt_directory_but_no_dataset_is_a_user_error(tmp_path, capsy
     est, _ = make_files(tmp_path)
     assert main(["eval", "--est", str(est), "--gt", str(tmp_path)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("gsjax eval: error:") and "needs --dataset; not yet supported" in err
+    assert err.startswith("gsjax eval: error:") and "needs --dataset" in err and "is a directory" in err
 
 
 def test_eval_reports_a_bad_trajectory_line_with_file_and_line(tmp_path, capsys):
