@@ -41,10 +41,10 @@ class RasterSettings:
     whatever the settings, truncation is reported in ``Render.stats``.
     """
 
-    tile_size: int = dataclasses.field(default=4, metadata=dict(static=True))
-    tile_capacity: int = dataclasses.field(default=256, metadata=dict(static=True))
+    tile_size: int = dataclasses.field(default=8, metadata=dict(static=True))
+    tile_capacity: int = dataclasses.field(default=512, metadata=dict(static=True))
     max_contributors: int = dataclasses.field(default=64, metadata=dict(static=True))
-    intersections_per_gaussian: float = dataclasses.field(default=8.0, metadata=dict(static=True))
+    intersections_per_gaussian: float = dataclasses.field(default=4.0, metadata=dict(static=True))
     tiles_per_batch: int = dataclasses.field(default=512, metadata=dict(static=True))
     near: float = 0.2
 
@@ -199,17 +199,24 @@ def _render(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, settin
     with jax.named_scope("composite"):
         slots = gather_slots(projected, selection.ids)
         pixels = grid.pixel_coords().reshape(-1, 2)
-        weights, _ = blend_weights(slot_alpha(slots, pixels))
+        weights, final_transmittance = blend_weights(slot_alpha(slots, pixels))
         out = composite(weights, slots.rgb, slots.depth)
     in_image = grid.in_image()
+    truncated = in_image & (selection.out_of_k | selection.cut_by_list)
+    # Where K cut the walk, what is left is the transmittance after the K-th contributor, i.e. after compositing.
+    residual = jnp.where(
+        selection.out_of_k,
+        jax.lax.stop_gradient(final_transmittance),
+        jnp.where(selection.cut_by_list, selection.residual_list, 0.0),
+    )
     stats = RenderStats(
         tiles_overflowed=jnp.sum(tiles.count > settings.tile_capacity, dtype=jnp.int32),
         intersections_dropped=tiles.intersections_dropped,
-        pixels_out_of_k=jnp.sum(in_image & (selection.num_kept > settings.max_contributors), dtype=jnp.int32),
-        pixels_truncated=jnp.sum(in_image & selection.truncated, dtype=jnp.int32),
-        max_residual_transmittance=jnp.max(jnp.where(in_image, selection.residual, 0.0)),
+        pixels_out_of_k=jnp.sum(in_image & selection.out_of_k, dtype=jnp.int32),
+        pixels_truncated=jnp.sum(truncated, dtype=jnp.int32),
+        max_residual_transmittance=jnp.max(jnp.where(truncated, residual, 0.0)),
         max_contributors=jnp.max(jnp.where(in_image, selection.num_kept, 0)),
-        truncated=jnp.any(in_image & selection.truncated),
+        truncated=jnp.any(truncated),
     )
     return Render(
         color=grid.untile(out.color),

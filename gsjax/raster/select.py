@@ -36,14 +36,17 @@ class Selection(NamedTuple):
     Attributes:
       ids: [P, K] int32 Gaussian indices in depth order; -1 marks an empty slot.
       num_kept: [P] int32 contributors before the stop rule (counted through the whole tile list, can exceed K).
-      truncated: [P] bool, the pixel's walk was cut by K or by an incomplete tile list.
-      residual: [P] float32 transmittance left where the walk was cut (0 when not truncated).
+      out_of_k: [P] bool, more than K contributors: the walk is cut after the K-th (the transmittance left there
+        is the compositing's final transmittance).
+      cut_by_list: [P] bool, the walk reached the end of an incomplete tile list without stopping.
+      residual_list: [P] float32 transmittance left at the end of the list (meaningful where ``cut_by_list``).
     """
 
     ids: jax.Array
     num_kept: jax.Array
-    truncated: jax.Array
-    residual: jax.Array
+    out_of_k: jax.Array
+    cut_by_list: jax.Array
+    residual_list: jax.Array
 
 
 def pack_bits(bits: jax.Array) -> jax.Array:
@@ -74,43 +77,45 @@ def first_set_bits(words: jax.Array, k: int) -> jax.Array:
 def _walk(features, ids, count, pixels, incomplete, k):
     """Tiles [b]: features [b, M, 6] = (u, v, a, b, c, opacity), ids [b, M], count [b] list lengths,
     pixels [b, T^2, 2], incomplete [b]. A while loop over list entries (forward only, no gradient) that stops at
-    the longest list, or earlier once every pixel has terminated."""
+    the longest list, or earlier once every pixel has terminated.
+
+    Per-pixel state is laid out [b, T^2] (tile features broadcast along the minor axis): on XLA:CPU this is about
+    5x faster than [T^2, b] for 8x8 tiles, and 4x4 tiles ([b, 16]) are as slow per pixel as the transposed layout.
+    """
     shape = pixels.shape[:2]
     num_entries = features.shape[1]
     longest = jnp.minimum(jnp.max(count), num_entries)
+    entries = jnp.moveaxis(features, 1, 0)  # [M, b, 6]: one contiguous row of tile features per step
 
     def cond(state):
-        m, _, _, _, terminated, _ = state
-        return (m < longest) & ~jnp.all(terminated)
+        m, log_t, _ = state
+        return (m < longest) & jnp.any(log_t >= _LOG_T_MIN)
 
     def body(state):
-        m, log_t, count, log_t_at_k, terminated, keep_bits = state
-        f = jax.lax.dynamic_index_in_dim(features, m, axis=1, keepdims=False)  # [b, 6]
+        m, log_t, keep_bits = state
+        f = jax.lax.dynamic_index_in_dim(entries, m, axis=0, keepdims=False)  # [b, 6]
         dx = pixels[..., 0] - f[:, None, 0]
         dy = pixels[..., 1] - f[:, None, 1]
         alpha = gaussian_alpha(dx, dy, f[:, None, 2:5], f[:, None, 5])
         contributes = alpha >= ALPHA_MIN  # empty entries have opacity 0
         log_t = log_t + jnp.where(contributes, jnp.log1p(-alpha), 0.0)
         keep = contributes & (log_t >= _LOG_T_MIN)
-        count = count + keep
-        log_t_at_k = jnp.where(keep & (count <= k), log_t, log_t_at_k)
-        terminated = terminated | (contributes & ~keep)
-        keep_bits = jax.lax.dynamic_update_index_in_dim(keep_bits, keep, m, axis=0)
-        return m + 1, log_t, count, log_t_at_k, terminated, keep_bits
+        return m + 1, log_t, jax.lax.dynamic_update_index_in_dim(keep_bits, keep, m, axis=0)
 
-    zeros = jnp.zeros(shape, jnp.float32)
-    init = (jnp.int32(0), zeros, jnp.zeros(shape, jnp.int32), zeros, jnp.zeros(shape, bool),
-            jnp.zeros((num_entries,) + shape, bool))
-    _, log_t, count, log_t_at_k, terminated, keep = jax.lax.while_loop(cond, body, init)
+    init = (jnp.int32(0), jnp.zeros(shape, jnp.float32), jnp.zeros((num_entries,) + shape, bool))
+    _, log_t, keep = jax.lax.while_loop(cond, body, init)
+    # log_t includes the contributor that triggered the stop (and any later ones), so a pixel terminated exactly
+    # when its final log transmittance is below the threshold.
+    terminated = log_t < _LOG_T_MIN
 
-    local = first_set_bits(pack_bits(keep.reshape(num_entries, -1)), k)  # [k, b * T^2]
+    words = pack_bits(keep.reshape(num_entries, -1))  # [M / 32, b * T^2]
+    num_kept = jnp.sum(jax.lax.population_count(words), axis=0).astype(jnp.int32).reshape(shape)
+    local = first_set_bits(words, k)  # [k, b * T^2]
     local = jnp.moveaxis(local.reshape((k,) + shape), 0, -1)  # [b, T^2, k]
     selected = jnp.where(local >= 0, jnp.take_along_axis(ids[:, None, :], jnp.maximum(local, 0), axis=-1), -1)
-
-    out_of_k = count > k
+    out_of_k = num_kept > k
     cut_by_list = incomplete[:, None] & ~terminated & ~out_of_k
-    residual = jnp.where(out_of_k, jnp.exp(log_t_at_k), jnp.where(cut_by_list, jnp.exp(log_t), 0.0))
-    return selected, count, out_of_k | cut_by_list, residual
+    return selected, num_kept, out_of_k, cut_by_list, jnp.exp(log_t)
 
 
 def select_contributors(
