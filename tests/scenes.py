@@ -218,8 +218,10 @@ def tiny_and_huge(seed: int = 0):
     rng = np.random.default_rng(seed)
     intr = default_intrinsics()
     n_tiny, n_huge = 30, 3
-    pts_tiny = camera_points(rng.uniform([-1, -1], [WIDTH, HEIGHT], (n_tiny, 2)), rng.uniform(0.5, 1.5, n_tiny), FX, FY, CX, CY)
-    pts_huge = camera_points(rng.uniform([0, 0], [WIDTH, HEIGHT], (n_huge, 2)), rng.uniform(2.5, 4, n_huge), FX, FY, CX, CY)
+    uv_tiny = rng.uniform([-1, -1], [WIDTH, HEIGHT], (n_tiny, 2))
+    pts_tiny = camera_points(uv_tiny, rng.uniform(0.5, 1.5, n_tiny), FX, FY, CX, CY)
+    uv_huge = rng.uniform([0, 0], [WIDTH, HEIGHT], (n_huge, 2))
+    pts_huge = camera_points(uv_huge, rng.uniform(2.5, 4, n_huge), FX, FY, CX, CY)
     pts = np.concatenate([pts_tiny, pts_huge])
     sig = np.concatenate([rng.uniform(0.02, 0.3, n_tiny), rng.uniform(100, 300, n_huge)])
     opa = np.concatenate([rng.uniform(0.5, 0.95, n_tiny), rng.uniform(0.3, 0.7, n_huge)])
@@ -259,7 +261,8 @@ def inactive_garbage(seed: int = 0):
     src = np.arange(n_active)
     active = np.zeros(SMALL_CAPACITY, bool)
     active[slots[:n_active]] = True
-    garbage_cam = camera_points(rng.uniform([0, 0], [WIDTH, HEIGHT], (SMALL_CAPACITY, 2)), np.ones(SMALL_CAPACITY), FX, FY, CX, CY)
+    garbage_uv = rng.uniform([0, 0], [WIDTH, HEIGHT], (SMALL_CAPACITY, 2))
+    garbage_cam = camera_points(garbage_uv, np.ones(SMALL_CAPACITY), FX, FY, CX, CY)
 
     def place(field, garbage):
         out = np.array(garbage, np.float32)
@@ -347,7 +350,8 @@ def grad_off_screen(seed: int = 0):
 
 
 def grad_stop_rule(seed: int = 0):
-    """Four stacked layers of wide, nearly opaque Gaussians (opacity 0.93-0.97): the T < 1e-4 stop acts at most pixels."""
+    """Five stacked layers of wide, nearly opaque Gaussians (opacity 0.93-0.97): the T < 1e-4 stop acts at most
+    pixels."""
     rng = np.random.default_rng(seed)
     layers, per_layer = 5, 3
     pts, sig = [], []

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from gsjax import camera
 from gsjax.camera import (
     Intrinsics,
     backproject,
@@ -222,7 +221,6 @@ def test_se3_exp_jacobian_matches_finite_differences_and_the_generators_at_zero(
 
 @pytest.mark.parametrize("frame", ["left", "right"])
 def test_constant_velocity_continues_a_constant_twist_sequence(frame):
-    rng = np.random.default_rng(17)
     start = expm_se3(random_tangents(18, n=1)[0])
     for xi in random_tangents(19, n=8, angles=(0.0, 0.6), translation=0.3):
         step = expm_se3(xi)
@@ -232,7 +230,6 @@ def test_constant_velocity_continues_a_constant_twist_sequence(frame):
         seq = [jnp.asarray(t, jnp.float32) for t in seq]
         predicted = np.asarray(constant_velocity(seq[1], seq[2]), np.float64)
         np.testing.assert_allclose(predicted, np.asarray(seq[3], np.float64), atol=5e-5)
-    del rng
 
 
 def test_constant_velocity_of_a_repeated_pose_is_that_pose():
@@ -275,7 +272,8 @@ def test_downscaled_intrinsics_project_to_the_same_physical_location():
         np.testing.assert_allclose(uv_small, (uv + 0.5) / factor - 0.5, rtol=1e-5, atol=1e-3)
     # a 2x2 block's centre: input pixels (2j, 2j+1) average to output pixel j
     small = intr.downscaled(2)
-    centre_of_block = jnp.asarray([[(0.5 - float(intr.cx)) / float(intr.fx), (0.5 - float(intr.cy)) / float(intr.fy), 1.0]])
+    fx, fy, cx, cy = (float(v) for v in (intr.fx, intr.fy, intr.cx, intr.cy))
+    centre_of_block = jnp.asarray([[(0.5 - cx) / fx, (0.5 - cy) / fy, 1.0]])
     np.testing.assert_allclose(np.asarray(project_points(centre_of_block, small)), [[0.0, 0.0]], atol=1e-4)
     for bad in (0, -1, 1.5):
         with pytest.raises(ValueError, match="factor"):
@@ -302,7 +300,8 @@ def test_calibration_matrix_and_half_fov_follow_the_intrinsics():
     k = np.asarray(intr.matrix(), np.float64)
     np.testing.assert_allclose(k, [[40.0, 0, 19.3], [0, 38.0, 15.6], [0, 0, 1]], rtol=1e-6)
     point = np.array([0.3, -0.2, 1.7])
-    np.testing.assert_allclose((k @ point)[:2] / point[2], np.asarray(project_points(jnp.asarray(point), intr)), atol=1e-5)
+    projected = np.asarray(project_points(jnp.asarray(point), intr))
+    np.testing.assert_allclose((k @ point)[:2] / point[2], projected, atol=1e-5)
     tan_x, tan_y = intr.tan_half_fov()
     np.testing.assert_allclose([float(tan_x), float(tan_y)], [44 / 80.0, 32 / 76.0], rtol=1e-6)
     assert intr.shape == (32, 44)
@@ -319,4 +318,3 @@ def test_intrinsics_is_a_pytree_with_static_image_size():
         return jnp.zeros(i.shape).sum() + i.fx
 
     assert float(shape_under_jit(intr)) == 40.0
-    assert camera.Intrinsics is Intrinsics

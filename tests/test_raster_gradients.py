@@ -11,8 +11,6 @@ straight-through gradient finite differences cannot see) never acts; it has its 
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -150,24 +148,27 @@ def test_alpha_clamp_passes_the_unclamped_gradient_straight_through():
     g_side = float(np.exp(-0.5 * p.conic[0, 0, 0] * 2.0**2))  # 2 px right of the centre, o g < 0.99 there
     assert opacity * g_side < 0.99
 
-    for (row, col), g, out_weight in (((10, 14), 1.0, "silhouette"), ((10, 14), 1.0, "depth"), ((10, 16), g_side, "silhouette")):
-        weights = {k: np.zeros(v.shape) for k, v in loss_weights(intr.height, intr.width).items()}
-        weights[out_weight][row, col] = 1.0
-        weights32 = {k: jnp.asarray(v, jnp.float32) for k, v in weights.items()}
-        value, grads = _loss_and_grad(*primals, gaussians.active, w2c, intr, weights32)
+    def one_pixel_loss(output, row, col):
+        weights = {k: jnp.zeros(v.shape, jnp.float32) for k, v in loss_weights(intr.height, intr.width).items()}
+        weights[output] = weights[output].at[row, col].set(1.0)
+        return _loss_and_grad(*primals, gaussians.active, w2c, intr, weights)
+
+    cases = (((10, 14), 1.0, "silhouette"), ((10, 14), 1.0, "depth"), ((10, 16), g_side, "silhouette"))
+    for (row, col), g, out_weight in cases:
+        value, grads = one_pixel_loss(out_weight, row, col)
         factor = z if out_weight == "depth" else 1.0
         np.testing.assert_allclose(float(value), factor * min(0.99, opacity * g), rtol=1e-5)
         np.testing.assert_allclose(float(grads[2][0]), factor * g * slope, rtol=1e-3)
     # and the colour channel's gradient at the clamped centre is rgb * o (1 - o), nonzero
-    weights = {k: np.zeros(v.shape) for k, v in loss_weights(intr.height, intr.width).items()}
-    weights["color"][10, 14] = 1.0
-    _, grads = _loss_and_grad(*primals, gaussians.active, w2c, intr, {k: jnp.asarray(v, jnp.float32) for k, v in weights.items()})
+    _, grads = one_pixel_loss("color", 10, 14)
     np.testing.assert_allclose(float(grads[2][0]), rgb.sum() * slope, rtol=1e-3)
 
 
 def _assert_renders_equal(a, b, label, atol=1e-5):
     for field in ("color", "depth", "silhouette", "depth_sq"):
-        np.testing.assert_allclose(np.asarray(getattr(a, field)), np.asarray(getattr(b, field)), atol=atol, err_msg=f"{label}: {field}")
+        np.testing.assert_allclose(
+            np.asarray(getattr(a, field)), np.asarray(getattr(b, field)), atol=atol, err_msg=f"{label}: {field}"
+        )
     assert stats_dict(a) == pytest.approx(stats_dict(b), abs=1e-6), label
 
 

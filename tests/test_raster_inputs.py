@@ -128,7 +128,8 @@ def hand_built(**overrides) -> Intrinsics:
     values = dict(fx=36.0, fy=36.0, cx=19.3, cy=15.6, height=scenes.HEIGHT, width=scenes.WIDTH)
     values.update(overrides)
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return Intrinsics(f32(values["fx"]), f32(values["fy"]), f32(values["cx"]), f32(values["cy"]), values["height"], values["width"])
+    fx, fy, cx, cy = (f32(values[k]) for k in ("fx", "fy", "cx", "cy"))
+    return Intrinsics(fx, fy, cx, cy, values["height"], values["width"])
 
 
 @pytest.mark.parametrize("name, value", [("fx", 0.0), ("fx", -36.0), ("fy", 0.0), ("fy", -2.0)])

@@ -55,8 +55,9 @@ def test_render_matches_the_float64_reference_with_default_settings(name):
     errs = errors(out, ref, ~ref.ambiguous)
     tiles = rr.tile_candidate_counts(ref, 16).max()
     print(
-        "\n" + format_errors(name, errs) + f"\n  {h}x{w}, {int(np.sum(gaussians.active))} active, contributors/pixel max "
-        f"{ref.count.max()}, candidates per 16x16 tile >= {tiles}, ambiguous px {int(ref.ambiguous.sum())}"
+        f"\n{format_errors(name, errs)}\n  {h}x{w}, {int(np.sum(gaussians.active))} active, "
+        f"contributors/pixel max {ref.count.max()}, candidates per 16x16 tile >= {tiles}, "
+        f"ambiguous px {int(ref.ambiguous.sum())}"
     )
     assert_no_truncation(name, out)
     assert_within_tolerance(name, errs)
@@ -112,7 +113,8 @@ def test_too_few_contributor_slots_are_reported_and_keep_the_first_k(name, k):
     slack = int(expected["full"].ambiguous.sum())
     print(
         f"\n{name} K={k}: reported {stats}; reference: {expected['must']} px with > K contributors, "
-        f"{expected['may']} px with > K candidates, residual T {expected['residual_must']:.3e}..{expected['residual_may']:.3e}"
+        f"{expected['may']} px with > K candidates, "
+        f"residual T {expected['residual_must']:.3e}..{expected['residual_may']:.3e}"
     )
     assert expected["must"] > 0  # the scene does overflow K
     assert stats["truncated"]
@@ -134,7 +136,8 @@ def test_too_small_tile_capacity_is_reported(name, tile_size, capacity):
     stats = stats_dict(out)
     counts = rr.tile_candidate_counts(ref, tile_size)
     must = int((counts > capacity).sum())
-    print(f"\n{name} tile {tile_size} capacity {capacity}: reported {stats}; reference: {must} of {counts.size} tiles must overflow")
+    print(f"\n{name} tile {tile_size} capacity {capacity}: reported {stats}; "
+          f"reference: {must} of {counts.size} tiles must overflow")
     assert must > 0
     assert must <= stats["tiles_overflowed"] <= counts.size
     assert stats["truncated"]

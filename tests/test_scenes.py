@@ -33,7 +33,8 @@ def test_dense_surface_is_one_opaque_gaussian_per_pixel():
     assert ref.silhouette.min() > 0.99 and ref.stopped.mean() > 0.5
     # scale = z / f: one pixel's footprint at the Gaussian's depth
     z = ref.projected.z
-    np.testing.assert_allclose(np.exp(np.asarray(gaussians.log_scales, np.float64)) * float(intr.fx) / z, 1.0, rtol=1e-4)
+    scales = np.exp(np.asarray(gaussians.log_scales, np.float64))
+    np.testing.assert_allclose(scales * float(intr.fx) / z, 1.0, rtol=1e-4)
 
 
 def test_heavy_overlap_has_50_to_60_contributors_before_the_stop():
