@@ -20,6 +20,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 # Below this squared rotation angle (rad^2) the closed forms lose float32 precision; use Taylor series instead.
 _SMALL_ANGLE_SQ = 0.04
@@ -254,9 +255,12 @@ def constant_velocity(w2c_prev2: jax.Array, w2c_prev1: jax.Array) -> jax.Array:
 
 def rigidity_error(transform: jax.Array) -> jax.Array:
     """How far 4x4 matrices [..., 4, 4] are from rigid transforms -> [...]: max of |R^T R - I|, |det R - 1| and
-    |last row - e4| (0 for a rigid transform). Used by the renderer on w2c and by the dataset readers on GT poses."""
+    |last row - e4| (0 for a rigid transform). Used by the renderer on w2c and by the dataset readers on GT poses.
+
+    A numpy input is checked in numpy (host side, no tracing: safe to call while an outer jit is tracing)."""
+    xp = np if isinstance(transform, np.ndarray) else jnp
     rot = transform[..., :3, :3]
-    ortho = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=transform.dtype)), axis=(-1, -2))
-    det = jnp.abs(jnp.linalg.det(rot) - 1.0)
-    last = jnp.max(jnp.abs(transform[..., 3, :] - jnp.array([0.0, 0.0, 0.0, 1.0], dtype=transform.dtype)), axis=-1)
-    return jnp.maximum(jnp.maximum(ortho, det), last)
+    ortho = xp.max(xp.abs(xp.swapaxes(rot, -1, -2) @ rot - xp.eye(3, dtype=transform.dtype)), axis=(-1, -2))
+    det = xp.abs(xp.linalg.det(rot) - 1.0)
+    last = xp.max(xp.abs(transform[..., 3, :] - xp.array([0.0, 0.0, 0.0, 1.0], dtype=transform.dtype)), axis=-1)
+    return xp.maximum(xp.maximum(ortho, det), last)

@@ -127,7 +127,7 @@ def check_render_inputs(gaussians, w2c, intrinsics, settings) -> None:
         w2c_np = np.asarray(w2c, np.float64)
         if not np.isfinite(w2c_np).all():
             raise ValueError("w2c has non-finite entries")
-        err = float(rigidity_error(jnp.asarray(w2c_np, jnp.float32)))
+        err = float(rigidity_error(w2c_np))
         if err > _RIGID_TOL:
             raise ValueError(f"w2c is not a rigid transform (rotation/last-row error {err:.3g} > {_RIGID_TOL})")
     for name in ("fx", "fy", "cx", "cy"):
