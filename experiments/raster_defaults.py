@@ -27,10 +27,9 @@ VARIANTS = ("fresh", "mapped", "receding", "layered")
 CANDIDATES = (
     dict(tile_size=8, tile_capacity=128, max_contributors=32),
     dict(tile_size=8, tile_capacity=256, max_contributors=64),
-    dict(tile_size=8, tile_capacity=384, max_contributors=96),
-    dict(tile_size=4, tile_capacity=128, max_contributors=32),
+    dict(tile_size=8, tile_capacity=512, max_contributors=64),  # the defaults
+    dict(tile_size=8, tile_capacity=768, max_contributors=128),
     dict(tile_size=4, tile_capacity=256, max_contributors=64),
-    dict(tile_size=4, tile_capacity=384, max_contributors=128),
 )
 
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from gsjax.camera import Intrinsics, rigidity_error
 from gsjax.gaussians import Gaussians, check_gaussians
+from gsjax.raster import cbknn as cb
 from gsjax.raster.binning import TileGrid, bin_gaussians
 from gsjax.raster.composite import blend_weights, composite, gather_slots, slot_alpha
 from gsjax.raster.project import project
@@ -77,6 +78,7 @@ class RenderStats(NamedTuple):
         the silhouette (and colour) weight lost to truncation.
       max_contributors: largest number of contributors of any pixel (counted through the whole tile list).
       truncated: any pixel truncated.
+      cbknn: :class:`gsjax.raster.cbknn.CBKNNStats` when CB-KNN was applied, else None.
     """
 
     tiles_overflowed: jax.Array
@@ -86,6 +88,7 @@ class RenderStats(NamedTuple):
     max_residual_transmittance: jax.Array
     max_contributors: jax.Array
     truncated: jax.Array
+    cbknn: cb.CBKNNStats | None = None
 
 
 class Render(NamedTuple):
@@ -103,7 +106,7 @@ def _is_concrete(x) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
 
 
-def check_render_inputs(gaussians, w2c, intrinsics, settings) -> None:
+def check_render_inputs(gaussians, w2c, intrinsics, settings, cbknn=None, motion=0.0) -> None:
     """Validate render's arguments; ValueError naming the argument.
 
     Shape and type checks always run; value checks (finiteness, rigidity, positivity) only when the values are
@@ -130,6 +133,17 @@ def check_render_inputs(gaussians, w2c, intrinsics, settings) -> None:
         err = float(rigidity_error(w2c_np))
         if err > _RIGID_TOL:
             raise ValueError(f"w2c is not a rigid transform (rotation/last-row error {err:.3g} > {_RIGID_TOL})")
+    if cbknn is not None:
+        if not isinstance(cbknn, cb.CBKNN):
+            raise ValueError(f"cbknn must be a gsjax.raster.cbknn.CBKNN or None, got {type(cbknn).__name__}")
+        if cbknn.k_max > settings.max_contributors:
+            raise ValueError(
+                f"cbknn.k_max ({cbknn.k_max}) exceeds settings.max_contributors ({settings.max_contributors})"
+            )
+    if np.ndim(motion) != 0:
+        raise ValueError(f"motion must be a scalar in [0, 1], got shape {list(np.shape(motion))}")
+    if _is_concrete(motion) and not (0.0 <= float(np.asarray(motion)) <= 1.0):
+        raise ValueError(f"motion must lie in [0, 1], got {float(np.asarray(motion))!r}")
     for name in ("fx", "fy", "cx", "cy"):
         value = getattr(intrinsics, name)
         if np.ndim(value) != 0:
@@ -146,14 +160,19 @@ def render(
     w2c: jax.Array,
     intrinsics: Intrinsics,
     settings: RasterSettings = RasterSettings(),
+    cbknn: cb.CBKNN | None = None,
+    motion=0.0,
 ) -> Render:
-    """Render a Gaussian map from a world-to-camera pose.
+    """Render a Gaussian map from a world-to-camera pose, optionally with CB-KNN smoothing.
 
     Args:
       gaussians: :class:`~gsjax.gaussians.Gaussians` with N slots (inactive slots are ignored).
       w2c: [4, 4] world-to-camera rigid transform (m).
       intrinsics: :class:`~gsjax.camera.Intrinsics`; the output is ``intrinsics.height x intrinsics.width``.
       settings: :class:`RasterSettings` (static shapes plus the traced near plane).
+      cbknn: ``None`` for the canonical render, or a :class:`gsjax.raster.cbknn.CBKNN` to smooth each pixel's
+        contributors transiently (the Gaussians are not modified); see :mod:`gsjax.raster.cbknn`.
+      motion: inter-frame motion gamma in [0, 1] for CB-KNN's adaptive K (ignored without ``cbknn``).
 
     Returns:
       :class:`Render` with colour [H, W, 3], depth [H, W] = sum w z (not normalised by the silhouette),
@@ -170,12 +189,19 @@ def render(
     here (ValueError naming the argument); value checks are skipped under an outer trace (see
     :func:`check_render_inputs`).
     """
-    check_render_inputs(gaussians, w2c, intrinsics, settings)
-    return _render(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, settings)
+    check_render_inputs(gaussians, w2c, intrinsics, settings, cbknn, motion)
+    return _render(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, settings, cbknn, jnp.asarray(motion, jnp.float32))
 
 
 @jax.jit
-def _render(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, settings: RasterSettings) -> Render:
+def _render(
+    gaussians: Gaussians,
+    w2c: jax.Array,
+    intrinsics: Intrinsics,
+    settings: RasterSettings,
+    cbknn: cb.CBKNN | None,
+    motion: jax.Array,
+) -> Render:
     gaussians = jax.tree_util.tree_map(
         lambda x: x if x.dtype == jnp.bool_ else jnp.asarray(x, jnp.float32), gaussians
     )
@@ -199,8 +225,14 @@ def _render(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, settin
     with jax.named_scope("composite"):
         slots = gather_slots(projected, selection.ids)
         pixels = grid.pixel_coords().reshape(-1, 2)
-        weights, final_transmittance = blend_weights(slot_alpha(slots, pixels))
-        out = composite(weights, slots.rgb, slots.depth)
+        alpha = slot_alpha(slots, pixels)
+        weights, final_transmittance = blend_weights(alpha)
+        cbknn_stats = None
+        if cbknn is None:
+            out = composite(weights, slots.rgb, slots.depth)
+        else:
+            with jax.named_scope("cbknn"):
+                out, cbknn_stats = _smoothed(projected, slots, pixels, alpha, weights, selection, grid, cbknn, motion)
     in_image = grid.in_image()
     truncated = in_image & (selection.out_of_k | selection.cut_by_list)
     # Where K cut the walk, what is left is the transmittance after the K-th contributor, i.e. after compositing.
@@ -217,6 +249,7 @@ def _render(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, settin
         max_residual_transmittance=jnp.max(jnp.where(truncated, residual, 0.0)),
         max_contributors=jnp.max(jnp.where(in_image, selection.num_kept, 0)),
         truncated=jnp.any(truncated),
+        cbknn=cbknn_stats,
     )
     return Render(
         color=grid.untile(out.color),
@@ -225,3 +258,23 @@ def _render(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, settin
         depth_sq=grid.untile(out.depth_sq),
         stats=stats,
     )
+
+
+def _smoothed(projected, slots, pixels, alpha, weights, selection, grid, cbknn, motion):
+    """CB-KNN compositing (method_spec D.5, D.7) of the selected slots; returns (Composite, CBKNNStats)."""
+    height, width = grid.height, grid.width
+    rho = cb.density_map(projected, height, width, cbknn.cell)
+    k_map = cb.kernel_size_map(rho, cbknn, motion)
+    k_pixel = k_map.reshape(-1)[cb.pixel_cells(pixels, height, width, cbknn.cell)]
+    corrected = cb.correct_slots(slots, pixels, alpha, weights, k_pixel, cbknn)
+    smoothed_weights, _ = blend_weights(corrected.alpha)
+    out = composite(smoothed_weights, corrected.rgb, slots.depth)
+    in_image = grid.in_image()
+    num_corrected = jnp.sum(corrected.corrected)
+    stats = cb.CBKNNStats(
+        k_map=k_map,
+        rho_map=rho,
+        mean_shift_px=jnp.sum(corrected.shift_px) / jnp.maximum(num_corrected, 1),
+        fraction_fewer_than_k=jnp.sum(in_image & (selection.num_kept < k_pixel)) / jnp.sum(in_image),
+    )
+    return out, stats
