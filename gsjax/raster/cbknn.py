@@ -215,14 +215,32 @@ def correct_slots(
       k_pixel: [P] int32 kernel size per pixel; cbknn: the configuration.
     """
     mask = correction_mask(slots, weights, k_pixel, cbknn)
+    # first_k only ever corrects the first k_max slots: work on that prefix and pass the rest through.
+    width = min(cbknn.k_max, alpha.shape[-1]) if cbknn.select == "first_k" else alpha.shape[-1]
+    head = lambda x: x[:, :width]  # noqa: E731
+    new_alpha, rgb, shift_px = _correct(
+        jax.tree_util.tree_map(head, slots), pixels, head(alpha), head(mask), cbknn
+    )
+    rest_alpha = jnp.zeros_like(alpha[:, width:]) if cbknn.truncate else alpha[:, width:]
+    return Corrected(
+        alpha=jnp.concatenate([new_alpha, rest_alpha], axis=1),
+        rgb=jnp.concatenate([rgb, slots.rgb[:, width:]], axis=1),
+        corrected=mask,
+        shift_px=jnp.concatenate([shift_px, jnp.zeros_like(alpha[:, width:])], axis=1),
+    )
+
+
+def _correct(slots: Slots, pixels, alpha, mask, cbknn: CBKNN):
+    """D.5 on slots [P, W] with G_p given by ``mask``: (alpha' [P, W], rgb' [P, W, 3], |shift| [P, W] px)."""
     m = mask.astype(alpha.dtype)
     count = jnp.sum(m, axis=-1, keepdims=True)
     centroid = _safe_divide(jnp.sum(m[..., None] * slots.uv, axis=-2), count)  # [P, 2]
     offset = centroid[:, None, :] - slots.uv
     if cbknn.shift_mode == "unit":
-        distance = jnp.sqrt(jnp.sum(jax.lax.stop_gradient(offset) ** 2, axis=-1, keepdims=True))
-        direction = jax.lax.stop_gradient(offset) / (distance + cbknn.eps)
-        shift = cbknn.alpha * direction
+        # The direction carries no gradient: its Jacobian is singular (~1/eps) where a centre sits on C_p.
+        offset = jax.lax.stop_gradient(offset)
+        distance = jnp.sqrt(jnp.sum(offset**2, axis=-1, keepdims=True))
+        shift = cbknn.alpha * (offset / (distance + cbknn.eps))
     else:
         shift = cbknn.alpha * offset
     if cbknn.position:
@@ -240,8 +258,5 @@ def correct_slots(
         rgb = jnp.where(mask[..., None], consensus[:, None, :], slots.rgb)
     else:
         rgb = slots.rgb
-    if cbknn.truncate:
-        new_alpha = jnp.where(mask, shifted_alpha, 0.0)
-    else:
-        new_alpha = jnp.where(mask, shifted_alpha, alpha)
-    return Corrected(new_alpha, rgb, mask, shift_px)
+    fallback = jnp.zeros_like(alpha) if cbknn.truncate else alpha
+    return jnp.where(mask, shifted_alpha, fallback), rgb, shift_px
