@@ -239,6 +239,13 @@ def perturb_left(delta: jax.Array, transform: jax.Array) -> jax.Array:
     return se3_exp(delta) @ transform
 
 
+def orthonormalize(transform: jax.Array) -> jax.Array:
+    """The nearest rigid transform, in practice: rotation re-built from its (normalised) quaternion, last row
+    reset. Repeated float32 products drift off SE(3); poses carried from frame to frame are passed through this."""
+    rotation = quaternion_to_rotation(rotation_to_quaternion(transform[:3, :3]))
+    return from_rotation_translation(rotation, transform[:3, 3])
+
+
 def camera_center(w2c: jax.Array) -> jax.Array:
     """Camera centre in world coordinates [3] (m) of a world-to-camera pose: ``-R^T t``."""
     return -w2c[:3, :3].T @ w2c[:3, 3]

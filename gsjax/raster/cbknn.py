@@ -103,8 +103,10 @@ class CBKNN:
                   ("tau_t", 0.0, True), ("tau_r", 0.0, True))
         for name, low, strict in checks:
             value = getattr(self, name)
-            if isinstance(value, jax.core.Tracer):
-                continue  # value checks need concrete values (skipped under a trace)
+            if isinstance(value, jax.core.Tracer) or not isinstance(
+                value, (int, float, np.ndarray, np.generic, jax.Array)
+            ):
+                continue  # traced, or a placeholder in a pytree (e.g. vmap's in_axes): not checkable
             v = np.asarray(value, np.float64)
             ok = np.isfinite(v).all() and (np.all(v > low) if strict else np.all(v >= low))
             if not ok:

@@ -59,7 +59,10 @@ class RasterSettings:
                 f"RasterSettings.intersections_per_gaussian must be a positive number, got "
                 f"{self.intersections_per_gaussian!r}"
             )
-        if _is_concrete(self.near) and not (np.isfinite(np.asarray(self.near)).all() and np.all(np.asarray(self.near) > 0)):
+        near_checkable = isinstance(self.near, (int, float, np.ndarray, np.generic, jax.Array))
+        if near_checkable and _is_concrete(self.near) and not (
+            np.isfinite(np.asarray(self.near)).all() and np.all(np.asarray(self.near) > 0)
+        ):
             raise ValueError(f"RasterSettings.near must be a positive finite number (m), got {self.near!r}")
 
     def intersection_capacity(self, num_gaussians: int, grid: TileGrid) -> int:

@@ -1,0 +1,368 @@
+"""SLAM configuration: frozen dataclass pytrees with presets, and command-line overrides by field name.
+
+Hyperparameters that users sweep (learning rates, loss weights, thresholds, CB-KNN alpha/K0/beta) are *traced*
+leaves, so ``jax.vmap`` over a batch of configs runs one compiled program; iteration counts, window sizes, modes
+and flags are *static* (they set shapes or control flow). Presets ``replica``, ``tum`` and ``scannet`` hold
+SplaTAM's per-dataset values (method_spec A.11) and the paper's CB-KNN K0 (D.6); ``cpu`` is sized for 2 CPU cores.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+
+import jax
+import numpy as np
+
+from gsjax.raster import RasterSettings
+from gsjax.raster.cbknn import CBKNN
+
+CBKNN_MODES = ("off", "code_parity", "paper")
+TRACKING_OPTIMIZERS = ("adam", "lm")
+BEST_POSE = ("pre_step", "post_step")
+
+
+def static(default):
+    """A static (treedef, compile-time) dataclass field."""
+    return dataclasses.field(default=default, metadata=dict(static=True))
+
+
+def _is_checkable(value) -> bool:
+    """A concrete number or array (not a tracer, nor a placeholder such as None in an ``in_axes`` tree)."""
+    return isinstance(value, (int, float, np.ndarray, np.generic, jax.Array)) and not isinstance(
+        value, jax.core.Tracer
+    )
+
+
+def _check_positive_int(owner: str, name: str, value, minimum: int = 1) -> None:
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < minimum:
+        raise ValueError(f"{owner}.{name} must be an int >= {minimum}, got {value!r}")
+
+
+def _check_number(owner: str, name: str, value, low: float, high: float = math.inf, strict_low=False) -> None:
+    if not _is_checkable(value):
+        return  # traced, or a placeholder JAX puts in a pytree (e.g. vmap's in_axes): checked when built
+    v = np.asarray(value, np.float64)
+    ok = np.isfinite(v).all() and np.all(v > low if strict_low else v >= low) and np.all(v <= high)
+    if not ok:
+        bound = f"{'>' if strict_low else '>='} {low}" + (f" and <= {high}" if high < math.inf else "")
+        raise ValueError(f"{owner}.{name} must be a finite number {bound}, got {value!r}")
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class TrackingConfig:
+    """Camera tracking (method_spec A.6): a fixed number of iterations on the pose tangent (left perturbation).
+
+    Attributes:
+      iters: optimisation iterations per frame.
+      optimizer: ``"adam"`` (SplaTAM parity: a fresh Adam per frame) or ``"lm"`` (Levenberg-Marquardt with
+        optimistix on the masked residuals, Jacobian by forward mode).
+      lr_trans: Adam step size of the translation part rho (m).
+      lr_rot: Adam step size of the rotation part phi (rad). SplaTAM's quaternion learning rate q corresponds to
+        about 2 q here (a unit quaternion's vector part moves by half the angle).
+      lambda_color, lambda_depth: weights of the summed L1 colour and depth terms.
+      sil_threshold: pixels enter the loss where the rendered silhouette exceeds this (and depth is valid).
+      best_pose: ``"pre_step"`` keeps the pose whose loss was lowest; ``"post_step"`` reproduces SplaTAM's
+        off-by-one (stores the pose after the step taken from the best loss).
+      normalized_depth: compare the observed depth with the rendered depth divided by the silhouette, D / S,
+        instead of SplaTAM's D = sum w z. With S < 1 (young maps, low resolution) D underestimates depth by
+        (1 - S) z, which biases the camera along its axis by about that much; D / S removes the bias.
+    """
+
+    iters: int = static(40)
+    optimizer: str = static("adam")
+    lr_trans: float = 2e-3
+    lr_rot: float = 8e-4
+    lambda_color: float = 0.5
+    lambda_depth: float = 1.0
+    sil_threshold: float = 0.99
+    best_pose: str = static("pre_step")
+    normalized_depth: bool = static(False)
+
+    def __post_init__(self):
+        _check_positive_int("tracking", "iters", self.iters)
+        if self.optimizer not in TRACKING_OPTIMIZERS:
+            raise ValueError(f"tracking.optimizer must be one of {TRACKING_OPTIMIZERS}, got {self.optimizer!r}")
+        if self.best_pose not in BEST_POSE:
+            raise ValueError(f"tracking.best_pose must be one of {BEST_POSE}, got {self.best_pose!r}")
+        for name in ("lr_trans", "lr_rot", "lambda_color", "lambda_depth"):
+            _check_number("tracking", name, getattr(self, name), 0.0)
+        _check_number("tracking", "sil_threshold", self.sil_threshold, 0.0, 1.0)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class MappingConfig:
+    """Map optimisation over a keyframe window (method_spec A.8, A.9).
+
+    Attributes:
+      iters: iterations per frame (a fresh Adam each frame, eps 1e-15).
+      window_size: views per window: overlapping keyframes + the last keyframe + the current frame.
+      lr_means, lr_rgb, lr_opacity, lr_scale: Adam step sizes of means (m), colours, logit opacities, log scales.
+      lambda_color, lambda_depth: loss weights; ``ssim_weight`` mixes 1 - SSIM into the colour term.
+      prune_opacity: prune Gaussians with opacity below this; ``prune_scale_ratio``: or with scale above this
+        fraction of the scene radius.
+      prune_iters: the mapping iterations at which pruning runs.
+      skip_step_at_prune: reproduce SplaTAM's quirk of skipping the Adam step at pruning iterations.
+      overlap_samples: depth pixels sampled to measure keyframe overlap; ``overlap_margin``: border (px) a
+        projected sample must clear to count as inside a keyframe.
+    """
+
+    iters: int = static(30)
+    window_size: int = static(24)
+    lr_means: float = 1e-4
+    lr_rgb: float = 2.5e-3
+    lr_opacity: float = 5e-2
+    lr_scale: float = 1e-3
+    lambda_color: float = 0.5
+    lambda_depth: float = 1.0
+    ssim_weight: float = 0.2
+    prune_opacity: float = 0.005
+    prune_scale_ratio: float = 0.1
+    prune_iters: tuple = static((0, 20))
+    skip_step_at_prune: bool = static(False)
+    overlap_samples: int = static(1600)
+    overlap_margin: float = 20.0
+
+    def __post_init__(self):
+        _check_positive_int("mapping", "iters", self.iters)
+        _check_positive_int("mapping", "window_size", self.window_size, 2)
+        _check_positive_int("mapping", "overlap_samples", self.overlap_samples)
+        for name in ("lr_means", "lr_rgb", "lr_opacity", "lr_scale", "lambda_color", "lambda_depth",
+                     "prune_opacity", "prune_scale_ratio", "overlap_margin"):
+            _check_number("mapping", name, getattr(self, name), 0.0)
+        _check_number("mapping", "ssim_weight", self.ssim_weight, 0.0, 1.0)
+        if not isinstance(self.prune_iters, tuple) or not all(isinstance(i, int) and i >= 0 for i in self.prune_iters):
+            raise ValueError(f"mapping.prune_iters must be a tuple of ints >= 0, got {self.prune_iters!r}")
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class DensifyConfig:
+    """Densification (method_spec A.7): new Gaussians where the silhouette is low or the map lies behind.
+
+    Attributes:
+      sil_threshold: add where the rendered silhouette is below this.
+      depth_error_factor: or where rendered depth lies behind the observation by more than this times the median
+        depth error.
+      init_opacity: opacity of new Gaussians (SplaTAM: 0.5).
+    """
+
+    sil_threshold: float = 0.5
+    depth_error_factor: float = 50.0
+    init_opacity: float = 0.5
+
+    def __post_init__(self):
+        _check_number("densify", "sil_threshold", self.sil_threshold, 0.0, 1.0)
+        _check_number("densify", "depth_error_factor", self.depth_error_factor, 0.0)
+        _check_number("densify", "init_opacity", self.init_opacity, 0.0, 1.0, strict_low=True)
+        if _is_checkable(self.init_opacity) and float(np.max(self.init_opacity)) >= 1.0:
+            raise ValueError(f"densify.init_opacity must be < 1, got {self.init_opacity!r}")
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class CBKNNConfig:
+    """Where CB-KNN acts (method_spec D.6) and its parameters.
+
+    Attributes:
+      mode: ``"off"`` (SplaTAM), ``"code_parity"`` (only the released code's 3D KNN smoothing of the overlap
+        samples) or ``"paper"`` (per-pixel smoothing of keyframe renders).
+      params: the per-pixel smoothing (:class:`gsjax.raster.cbknn.CBKNN`: alpha, k0, beta, ... ).
+      track_keyframes, map_keyframes, densify: in ``paper`` mode, smooth keyframe tracking renders, mapping
+        renders of keyframes, and the densification render of keyframes.
+      lambda_color_keyframe: tracking colour weight on smoothed keyframes (paper: 0.6).
+      kf_overlap_smoothing: smooth the overlap samples (on in ``code_parity``).
+      smoothing_base_k, smoothing_min_k, smoothing_max_k, smoothing_dropout: that smoothing's parameters.
+    """
+
+    mode: str = static("off")
+    params: CBKNN = CBKNN()
+    track_keyframes: bool = static(True)
+    map_keyframes: bool = static(True)
+    densify: bool = static(True)
+    lambda_color_keyframe: float = 0.6
+    kf_overlap_smoothing: bool = static(False)
+    smoothing_base_k: int = static(6)
+    smoothing_min_k: int = static(2)
+    smoothing_max_k: int = static(16)
+    smoothing_dropout: float = static(0.4)
+
+    def __post_init__(self):
+        if self.mode not in CBKNN_MODES:
+            raise ValueError(f"cbknn.mode must be one of {CBKNN_MODES}, got {self.mode!r}")
+        _check_number("cbknn", "lambda_color_keyframe", self.lambda_color_keyframe, 0.0)
+        for name in ("smoothing_base_k", "smoothing_min_k", "smoothing_max_k"):
+            _check_positive_int("cbknn", name, getattr(self, name))
+        if self.smoothing_min_k > self.smoothing_max_k:
+            raise ValueError("cbknn.smoothing_min_k must not exceed cbknn.smoothing_max_k")
+        if not 0.0 <= self.smoothing_dropout < 1.0:
+            raise ValueError(f"cbknn.smoothing_dropout must lie in [0, 1), got {self.smoothing_dropout!r}")
+
+    @property
+    def smooth_renders(self) -> bool:
+        return self.mode == "paper"
+
+    @property
+    def smooth_overlap(self) -> bool:
+        return self.mode == "code_parity" or (self.mode == "paper" and self.kf_overlap_smoothing)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class SlamConfig:
+    """Everything the SLAM core needs (a pytree: traced hyperparameters, static shapes and modes).
+
+    Attributes:
+      tracking, mapping, densify, cbknn: the stage configs.
+      raster: rasterizer settings.
+      keyframe_every: a keyframe every this many frames (plus frame 0 and the second-to-last frame).
+      scene_radius_depth_ratio: scene radius = max depth of frame 0 / this (used by pruning).
+    """
+
+    tracking: TrackingConfig = TrackingConfig()
+    mapping: MappingConfig = MappingConfig()
+    densify: DensifyConfig = DensifyConfig()
+    cbknn: CBKNNConfig = CBKNNConfig()
+    raster: RasterSettings = RasterSettings()
+    keyframe_every: int = static(5)
+    scene_radius_depth_ratio: float = 3.0
+
+    def __post_init__(self):
+        _check_positive_int("config", "keyframe_every", self.keyframe_every)
+        _check_number("config", "scene_radius_depth_ratio", self.scene_radius_depth_ratio, 0.0, strict_low=True)
+        if self.cbknn.smooth_renders and self.cbknn.params.k_max > self.raster.max_contributors:
+            raise ValueError(
+                f"cbknn.params.k_max ({self.cbknn.params.k_max}) exceeds raster.max_contributors "
+                f"({self.raster.max_contributors})"
+            )
+
+
+def _paper_cbknn(k0: float) -> CBKNNConfig:
+    return CBKNNConfig(mode="off", params=CBKNN(alpha=0.2, k0=k0, beta=0.3))
+
+
+def preset(name: str) -> SlamConfig:
+    """A named preset: ``replica``, ``tum``, ``scannet`` (SplaTAM / paper values) or ``cpu`` (2 CPU cores)."""
+    # SplaTAM's rotation learning rates act on quaternions; phi moves about twice as fast (see TrackingConfig).
+    if name == "replica":
+        return SlamConfig(
+            tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=8e-4),
+            mapping=MappingConfig(iters=60, window_size=24),
+            cbknn=_paper_cbknn(5.0),
+            scene_radius_depth_ratio=3.0,
+        )
+    if name == "tum":
+        return SlamConfig(
+            tracking=TrackingConfig(iters=200, lr_trans=2e-3, lr_rot=4e-3),
+            mapping=MappingConfig(iters=30, window_size=20),
+            cbknn=_paper_cbknn(8.0),
+            scene_radius_depth_ratio=2.0,
+        )
+    if name == "scannet":
+        return SlamConfig(
+            tracking=TrackingConfig(iters=100, lr_trans=5e-4, lr_rot=1e-3),
+            mapping=MappingConfig(iters=30, window_size=10),
+            cbknn=_paper_cbknn(8.0),
+            scene_radius_depth_ratio=3.0,
+        )
+    if name == "cpu":
+        return SlamConfig(
+            tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=2e-3),
+            mapping=MappingConfig(iters=30, window_size=10, overlap_samples=800, overlap_margin=2.5),
+            cbknn=_paper_cbknn(8.0),
+            scene_radius_depth_ratio=2.0,
+        )
+    raise ValueError(f"unknown preset {name!r} (replica, tum, scannet, cpu)")
+
+
+PRESETS = ("replica", "tum", "scannet", "cpu")
+
+
+def with_cbknn_mode(config: SlamConfig, mode: str) -> SlamConfig:
+    """The config with CB-KNN switched to ``mode`` (``off``, ``code_parity``, ``paper``)."""
+    return dataclasses.replace(config, cbknn=dataclasses.replace(config.cbknn, mode=mode))
+
+
+# ------------------------------------------------------------------------------------------ overrides by name
+
+
+def _convert(text: str, current, path: str):
+    """Parse ``text`` as the type of the field's current value."""
+    try:
+        if isinstance(current, bool):
+            if text.lower() in ("1", "true", "yes", "on"):
+                return True
+            if text.lower() in ("0", "false", "no", "off"):
+                return False
+            raise ValueError
+        if isinstance(current, (int, np.integer)):
+            return int(text)
+        if isinstance(current, (float, np.floating)):
+            return float(text)
+        if isinstance(current, tuple):
+            return tuple(int(x) for x in text.split(",") if x.strip())
+        if isinstance(current, str):
+            return text
+    except ValueError:
+        pass
+    raise ValueError(f"--{path}: cannot read {text!r} as {type(current).__name__}")
+
+
+def apply_overrides(config, overrides: dict[str, str]):
+    """A copy of ``config`` with dotted field names set from strings, e.g. ``{"tracking.iters": "60"}``.
+
+    Raises ValueError naming the field for unknown names and unreadable or invalid values.
+    """
+    for path, text in overrides.items():
+        config = _set_path(config, path.split("."), text, path)
+    return config
+
+
+def _set_path(obj, parts: list[str], text: str, path: str):
+    if not dataclasses.is_dataclass(obj):
+        raise ValueError(f"--{path}: {parts[0]!r} is not a config section")
+    names = {f.name for f in dataclasses.fields(obj)}
+    if parts[0] not in names:
+        raise ValueError(f"--{path}: unknown field {parts[0]!r} (fields: {', '.join(sorted(names))})")
+    current = getattr(obj, parts[0])
+    value = _set_path(current, parts[1:], text, path) if len(parts) > 1 else _convert(text, current, path)
+    try:
+        return dataclasses.replace(obj, **{parts[0]: value})
+    except ValueError as err:
+        raise ValueError(f"--{path}: {err}") from None
+
+
+def config_to_dict(config) -> dict:
+    """A JSON-friendly nested dict of a config (for ``config.json``)."""
+    out = {}
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if dataclasses.is_dataclass(value):
+            out[field.name] = config_to_dict(value)
+        elif isinstance(value, tuple):
+            out[field.name] = list(value)
+        else:
+            arr = np.asarray(value)
+            out[field.name] = arr.item() if arr.ndim == 0 else arr.tolist()
+    return out
+
+
+def config_from_dict(data: dict, base=None):
+    """Inverse of :func:`config_to_dict` (unknown keys are errors)."""
+    base = SlamConfig() if base is None else base
+    kwargs = {}
+    hints = typing.get_type_hints(type(base))
+    for key, value in data.items():
+        if key not in hints:
+            raise ValueError(f"config: unknown field {key!r}")
+        current = getattr(base, key)
+        if dataclasses.is_dataclass(current):
+            kwargs[key] = config_from_dict(value, current)
+        elif isinstance(current, tuple):
+            kwargs[key] = tuple(value)
+        else:
+            kwargs[key] = value
+    return dataclasses.replace(base, **kwargs)

@@ -1,0 +1,55 @@
+"""Tracking and mapping losses (method_spec A.6.3, A.9), on :class:`gsjax.slam.views.View` renders."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from gsjax.eval.image import ssim_splatam
+from gsjax.slam.views import View
+
+
+def tracking_mask(view: View, depth_gt: jax.Array, sil_threshold) -> jax.Array:
+    """[H, W] bool: valid observed depth, finite rendered depth and variance, silhouette above the threshold."""
+    variance = view.depth_sq - view.depth * view.depth
+    return (depth_gt > 0) & jnp.isfinite(view.depth) & jnp.isfinite(variance) & (view.silhouette > sil_threshold)
+
+
+def rendered_depth(view: View, normalized: bool) -> jax.Array:
+    """SplaTAM's depth D = sum w z, or D / S (``normalized``; 0 where S = 0)."""
+    if not normalized:
+        return view.depth
+    covered = view.silhouette > 0
+    return jnp.where(covered, view.depth / jnp.where(covered, view.silhouette, 1.0), 0.0)
+
+
+def tracking_loss(
+    view: View, color_gt, depth_gt, lambda_color, lambda_depth, sil_threshold, normalized_depth: bool = False
+) -> jax.Array:
+    """SplaTAM's tracking loss: lambda_depth sum_M |D - D_gt| + lambda_color sum_M |C - C_gt| (sums, not means)."""
+    mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
+    depth = rendered_depth(view, normalized_depth)
+    depth_term = jnp.sum(jnp.where(mask, jnp.abs(depth - depth_gt), 0.0))
+    color_term = jnp.sum(jnp.where(mask[..., None], jnp.abs(view.color - color_gt), 0.0))
+    return lambda_depth * depth_term + lambda_color * color_term
+
+
+def tracking_residuals(
+    view: View, color_gt, depth_gt, lambda_color, lambda_depth, sil_threshold, normalized_depth: bool = False
+) -> jax.Array:
+    """The same masked terms as a residual vector [H*W*4] for least squares (Gauss-Newton / LM)."""
+    mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
+    rendered = rendered_depth(view, normalized_depth)
+    depth = jnp.where(mask, rendered - depth_gt, 0.0) * jnp.sqrt(lambda_depth)
+    color = jnp.where(mask[..., None], view.color - color_gt, 0.0) * jnp.sqrt(lambda_color)
+    return jnp.concatenate([depth.reshape(-1), color.reshape(-1)])
+
+
+def mapping_loss(view: View, color_gt, depth_gt, lambda_color, lambda_depth, ssim_weight) -> jax.Array:
+    """SplaTAM's mapping loss: lambda_depth mean_{D_gt>0} |D - D_gt| + lambda_color ((1 - w) mean |C - C_gt| +
+    w (1 - SSIM(C, C_gt))), colour over all pixels, SSIM zero-padded as in SplaTAM's training code."""
+    valid = depth_gt > 0
+    depth_term = jnp.sum(jnp.where(valid, jnp.abs(view.depth - depth_gt), 0.0)) / jnp.maximum(jnp.sum(valid), 1)
+    l1 = jnp.mean(jnp.abs(view.color - color_gt))
+    color_term = (1.0 - ssim_weight) * l1 + ssim_weight * (1.0 - ssim_splatam(view.color, color_gt))
+    return lambda_depth * depth_term + lambda_color * color_term

@@ -1,0 +1,103 @@
+"""Map optimisation over a keyframe window (method_spec A.9): Gaussians only, a fresh Adam per frame."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from gsjax.camera import Intrinsics
+from gsjax.gaussians import Gaussians
+from gsjax.slam.config import SlamConfig
+from gsjax.slam.densify import prune
+from gsjax.slam.keyframes import CURRENT, Window
+from gsjax.slam.losses import mapping_loss
+from gsjax.slam.state import KeyframeBuffer
+from gsjax.slam.views import render_view
+
+
+class Views(NamedTuple):
+    """The renderable views of a window: colour [V, H, W, 3], depth [V, H, W], w2c [V, 4, 4], gamma [V],
+    keyframe [V] bool (renders smoothed in ``paper`` mode), valid [V] bool."""
+
+    color: jax.Array
+    depth: jax.Array
+    w2c: jax.Array
+    gamma: jax.Array
+    keyframe: jax.Array
+    valid: jax.Array
+
+
+def window_views(window: Window, keyframes: KeyframeBuffer, color, depth, w2c, gamma, current_is_keyframe) -> Views:
+    """Gather the window's views from the keyframe buffer and the current frame."""
+    current = window.index == CURRENT
+    slot = jnp.maximum(window.index, 0)
+
+    def pick(stored, now):
+        mask = current.reshape(current.shape + (1,) * (stored.ndim - 1))
+        return jnp.where(mask, now[None], stored[slot])
+
+    return Views(
+        color=pick(keyframes.color, color),
+        depth=pick(keyframes.depth, depth),
+        w2c=pick(keyframes.w2c, w2c),
+        gamma=pick(keyframes.gamma, gamma),
+        keyframe=jnp.where(current, current_is_keyframe, True),
+        valid=window.valid,
+    )
+
+
+class MapResult(NamedTuple):
+    """The optimised map and the loss of the last iteration."""
+
+    gaussians: Gaussians
+    loss: jax.Array
+
+
+_PARAMS = ("means", "rgb", "logit_opacities", "log_scales")
+
+
+def map_window(
+    key, gaussians: Gaussians, views: Views, intrinsics: Intrinsics, config: SlamConfig, scene_radius
+) -> MapResult:
+    """``config.mapping.iters`` iterations, each on one view drawn uniformly from the valid window entries;
+    pruning at ``prune_iters`` (after the gradient, before the step, as SplaTAM)."""
+    cfg = config.mapping
+    step_sizes = dict(means=cfg.lr_means, rgb=cfg.lr_rgb, logit_opacities=cfg.lr_opacity, log_scales=cfg.lr_scale)
+    adam = optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15)
+    params = {name: getattr(gaussians, name) for name in _PARAMS}
+    smooth_stage = config.cbknn.smooth_renders and config.cbknn.map_keyframes
+    picks = jax.random.categorical(key, jnp.where(views.valid, 0.0, -jnp.inf), shape=(cfg.iters,))
+
+    def loss_fn(params, active, view_index):
+        g = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
+        smooth = views.keyframe[view_index] & smooth_stage
+        view = render_view(g, views.w2c[view_index], intrinsics, config, smooth, views.gamma[view_index])
+        return mapping_loss(view, views.color[view_index], views.depth[view_index], cfg.lambda_color,
+                            cfg.lambda_depth, cfg.ssim_weight)
+
+    def iteration(carry, inputs):
+        params, active, opt_state = carry
+        it, view_index = inputs
+        loss, grads = jax.value_and_grad(loss_fn)(params, active, view_index)
+        at_prune = jnp.isin(it, jnp.asarray(cfg.prune_iters, jnp.int32)) if cfg.prune_iters else jnp.bool_(False)
+        pruned = prune(Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"],
+                                 active), cfg, scene_radius).active
+        active = jnp.where(at_prune, pruned, active)
+        updates, new_opt_state = adam.update(grads, opt_state)
+        take_step = jnp.logical_not(at_prune) if cfg.skip_step_at_prune else jnp.bool_(True)
+        params = {
+            name: jnp.where(take_step, params[name] - step_sizes[name] * updates[name], params[name])
+            for name in _PARAMS
+        }
+        opt_state = jax.tree_util.tree_map(lambda n, o: jnp.where(take_step, n, o), new_opt_state, opt_state)
+        return (params, active, opt_state), loss
+
+    init = (params, gaussians.active, adam.init(params))
+    (params, active, _), losses = jax.lax.scan(
+        iteration, init, (jnp.arange(cfg.iters, dtype=jnp.int32), picks)
+    )
+    out = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
+    return MapResult(out, losses[-1])

@@ -1,0 +1,121 @@
+"""The SLAM state carried through ``lax.scan`` over frames: the map, recent poses, keyframes, RNG, counters."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from gsjax.gaussians import Gaussians
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class KeyframeBuffer:
+    """Fixed-capacity keyframe store (method_spec A.10), filled in order.
+
+    Attributes:
+      color: [F, H, W, 3] float32; depth: [F, H, W] float32 m (0 = invalid).
+      w2c: [F, 4, 4] estimated world-to-camera pose at insertion (fixed after tracking, so mapping re-renders it).
+      frame: [F] int32 frame index; gamma: [F] float32 motion gamma used at that frame's tracking (CB-KNN).
+      count: [] int32 keyframes stored (slots >= count are empty).
+    """
+
+    color: jax.Array
+    depth: jax.Array
+    w2c: jax.Array
+    frame: jax.Array
+    gamma: jax.Array
+    count: jax.Array
+
+    @property
+    def capacity(self) -> int:
+        return self.frame.shape[-1]
+
+    @staticmethod
+    def empty(capacity: int, height: int, width: int) -> "KeyframeBuffer":
+        return KeyframeBuffer(
+            color=jnp.zeros((capacity, height, width, 3), jnp.float32),
+            depth=jnp.zeros((capacity, height, width), jnp.float32),
+            w2c=jnp.broadcast_to(jnp.eye(4, dtype=jnp.float32), (capacity, 4, 4)),
+            frame=jnp.full((capacity,), -1, jnp.int32),
+            gamma=jnp.zeros((capacity,), jnp.float32),
+            count=jnp.int32(0),
+        )
+
+    def push(self, color, depth, w2c, frame, gamma, enabled) -> "KeyframeBuffer":
+        """Append a keyframe when ``enabled`` (a traced bool); a full buffer keeps its content (the shell sizes it
+        for the whole sequence, so this does not happen in a run)."""
+        enabled = enabled & (self.count < self.capacity)
+        slot = jnp.minimum(self.count, self.capacity - 1)
+
+        def put(buffer, value):
+            return jnp.where(enabled, buffer.at[slot].set(value), buffer)
+
+        return KeyframeBuffer(
+            color=put(self.color, color),
+            depth=put(self.depth, depth),
+            w2c=put(self.w2c, w2c),
+            frame=put(self.frame, frame),
+            gamma=put(self.gamma, gamma),
+            count=self.count + enabled.astype(jnp.int32),
+        )
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class SlamState:
+    """Everything one SLAM step needs from the previous ones.
+
+    Attributes:
+      gaussians: the map (fixed capacity, ``active`` mask).
+      w2c_prev1, w2c_prev2: estimated world-to-camera poses of frames t-1 and t-2 (identity before).
+      keyframes: the keyframe buffer.
+      key: PRNG key for mapping-window and pixel sampling.
+      frame: [] int32 index t of the next frame to process.
+      num_frames: [] int32 length of the sequence (decides the second-to-last keyframe).
+      scene_radius: [] float32 (m), set at frame 0 from its depth.
+      nonfinite_tracking: [] int32 tracking iterations whose loss or gradient was not finite (skipped).
+      dropped_gaussians: [] int32 new Gaussians that found no free slot (the shell grows capacity to avoid it).
+    """
+
+    gaussians: Gaussians
+    w2c_prev1: jax.Array
+    w2c_prev2: jax.Array
+    keyframes: KeyframeBuffer
+    key: jax.Array
+    frame: jax.Array
+    num_frames: jax.Array
+    scene_radius: jax.Array
+    nonfinite_tracking: jax.Array
+    dropped_gaussians: jax.Array
+
+
+def initial_state(
+    capacity: int, height: int, width: int, keyframe_capacity: int, num_frames: int, seed: int
+) -> SlamState:
+    """An empty map and no history, ready for frame 0."""
+    eye = jnp.eye(4, dtype=jnp.float32)
+    return SlamState(
+        gaussians=Gaussians.empty(capacity),
+        w2c_prev1=eye,
+        w2c_prev2=eye,
+        keyframes=KeyframeBuffer.empty(keyframe_capacity, height, width),
+        key=jax.random.PRNGKey(seed),
+        frame=jnp.int32(0),
+        num_frames=jnp.int32(num_frames),
+        scene_radius=jnp.float32(1.0),
+        nonfinite_tracking=jnp.int32(0),
+        dropped_gaussians=jnp.int32(0),
+    )
+
+
+def grow_capacity(state: SlamState, capacity: int) -> SlamState:
+    """The same state with the map's capacity raised to ``capacity`` (new slots free)."""
+    return dataclasses.replace(state, gaussians=state.gaussians.grow(capacity))
+
+
+def keyframe_capacity_for(num_frames: int, every: int) -> int:
+    """Keyframes a sequence of ``num_frames`` can produce: frame 0, every ``every``-th, and the second-to-last."""
+    return num_frames // every + 2

@@ -1,0 +1,55 @@
+"""Rendering a view for the SLAM stages: the canonical render, or CB-KNN's smoothed one for keyframes."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from gsjax.camera import Intrinsics
+from gsjax.gaussians import Gaussians
+from gsjax.raster import render
+from gsjax.slam.config import SlamConfig
+
+
+class View(NamedTuple):
+    """What the losses and densification read from a render: color [H, W, 3], depth (sum w z) [H, W],
+    silhouette [H, W], depth_sq [H, W], and ``truncated`` (any pixel cut by the rasterizer's capacities)."""
+
+    color: jax.Array
+    depth: jax.Array
+    silhouette: jax.Array
+    depth_sq: jax.Array
+    truncated: jax.Array
+
+
+def _view(out) -> View:
+    return View(out.color, out.depth, out.silhouette, out.depth_sq, out.stats.truncated)
+
+
+def render_view(
+    gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, config: SlamConfig, smooth, gamma
+) -> View:
+    """Render ``gaussians`` at ``w2c``; with CB-KNN's per-pixel smoothing where ``smooth`` (a traced bool) is true.
+
+    When the config never smooths renders (CB-KNN mode other than ``paper``), this is the canonical render and
+    ``smooth`` is ignored, so no second render path is compiled.
+    """
+    if not config.cbknn.smooth_renders:
+        return _view(render(gaussians, w2c, intrinsics, config.raster))
+    return jax.lax.cond(
+        smooth,
+        lambda: _view(render(gaussians, w2c, intrinsics, config.raster, cbknn=config.cbknn.params, motion=gamma)),
+        lambda: _view(render(gaussians, w2c, intrinsics, config.raster)),
+    )
+
+
+def is_keyframe(frame, num_frames, every: int):
+    """SplaTAM's keyframe rule (A.10): frame 0, every ``every``-th frame ((t+1) % every == 0), the second-to-last."""
+    return (frame == 0) | ((frame + 1) % every == 0) | (frame == num_frames - 2)
+
+
+def smooth_flag(config: SlamConfig, stage_enabled: bool, keyframe) -> jax.Array:
+    """Whether a render of a (non-)keyframe is smoothed at a stage, given the static switches."""
+    return jnp.asarray(config.cbknn.smooth_renders and stage_enabled) & keyframe
