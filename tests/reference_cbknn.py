@@ -189,6 +189,7 @@ def render_cbknn_reference(
     near: float = 0.2,
     max_contributors: int | None = None,
     direction: np.ndarray | None = None,
+    shifted_alpha_floor: float = 0.0,
 ) -> CBKNNReference:
     """CB-KNN render in float64.
 
@@ -199,6 +200,9 @@ def render_cbknn_reference(
         int array of K_p (k0, beta, motion, k_min, k_max, cell are then unused).
       direction: None, or an [H, W, L, 2] unit-direction table (from a previous call's ``.direction``) to use
         instead of the one computed here (unit mode only): finite differences of the stop-gradient direction.
+      shifted_alpha_floor: a slot of G_p whose f' falls below this is dropped (f' = 0). 0 (the contract) keeps
+        every slot; 1/255 is the alternative reading that re-applies the contributor threshold after the shift
+        (only used to show that a test can tell the two apart).
       the rest: the CBKNN fields.
     """
     if select not in ("first_k", "top_weight") or shift_mode not in ("unit", "fraction"):
@@ -266,6 +270,7 @@ def render_cbknn_reference(
         step = np.zeros_like(step)
     shifted_uv = uv + np.where(in_group[..., None], step, 0.0)
     f_shifted, _ = _alpha_at_pixels(p, safe, shifted_uv, height, width)
+    f_shifted = np.where(f_shifted < shifted_alpha_floor, 0.0, f_shifted)
     f_shifted = np.where(in_group, f_shifted, f)
     shift_px = np.linalg.norm(shifted_uv - uv, axis=-1)
 
