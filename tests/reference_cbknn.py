@@ -78,7 +78,10 @@ def kernel_map(
     k_max: int = 16,
     cell: int = 8,
 ) -> KernelMap:
-    """Per-cell density and kernel size from the projection of the canonical render (D.7)."""
+    """Per-cell density and kernel size from the projection of the canonical render (D.7).
+
+    With no non-empty cell the mean is undefined; we take rho = 0 everywhere (so K = k_max where beta gamma > 0).
+    """
     p = projected
     u, v = p.uv[:, 0], p.uv[:, 1]
     counted = p.visible & (p.opacity >= rr.ALPHA_MIN)
