@@ -8,10 +8,6 @@ canonical ones, a top_weight tie at the K-th weight, a unit direction from |C_p 
 Parameter sets: ``FIXED`` (beta = 0: K = round(k0) = 5 everywhere) and ``ADAPTIVE`` (k0 = 4.3, beta = 0.37,
 motion 0.83: K in {5, 6, 8, 16} across the cells of the sparse scenes); values chosen off the rounding half points
 (checked by the reference).
-
-Known disagreement (xfail strict): ``stats.cbknn.mean_shift_px`` also averages the slots of the padding pixels of
-the tile grid past the image border, so it is wrong for images whose sides are not multiples of the tile size and
-changes with ``RasterSettings.tile_size``; the images, K map, rho map and fraction_fewer_than_k are right.
 """
 
 from __future__ import annotations
@@ -215,12 +211,6 @@ def test_k_map_rho_map_and_fewer_than_k_fraction_match_the_reference(name):
     print(f"\n{name}: counts per cell\n{ref.kernel.counts}\nK\n{ref.kernel.k}")
 
 
-MEAN_SHIFT_DISAGREEMENT = (
-    "mean_shift_px also averages the corrected slots of the padding pixels past the image border (the tile grid "
-    "rounds 45 x 60 up to 48 x 64). rotated_camera, ADAPTIVE: unit got 0.240567, the image's corrected slots give "
-    "0.241828; fraction got 1.577987, expected 1.599381. The values got are what the reference gives for a 48 x 64 "
-    "image with the same K map"
-)
 
 
 @pytest.mark.parametrize(
@@ -229,7 +219,7 @@ MEAN_SHIFT_DISAGREEMENT = (
         "sparse_random",
         "heavy_overlap",
         "dense_surface",
-        pytest.param("rotated_camera", marks=pytest.mark.xfail(strict=True, reason=MEAN_SHIFT_DISAGREEMENT)),
+        "rotated_camera",
     ],
 )
 @pytest.mark.parametrize("shift_mode", ["unit", "fraction"])
@@ -268,12 +258,6 @@ def test_cbknn_images_k_map_and_fewer_than_k_do_not_depend_on_the_tile_size():
     assert float(out.stats.cbknn.fraction_fewer_than_k) == float(default.stats.cbknn.fraction_fewer_than_k)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="mean_shift_px depends on the tile size: sparse_random, ADAPTIVE, unit: 0.250000 with 8-px tiles, 0.247622 "
-    "with 16-px tiles (0.247622 is the reference's mean over a 32 x 48 image with the edge cells' K, i.e. it also "
-    "counts the slots of the padding columns 40-47)",
-)
 def test_mean_shift_px_does_not_depend_on_the_tile_size():
     default, _ = render_and_reference("sparse_random", "ADAPTIVE")
     np.testing.assert_allclose(

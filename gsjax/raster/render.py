@@ -273,11 +273,11 @@ def _smoothed(projected, slots, pixels, alpha, weights, selection, grid, cbknn, 
     smoothed_weights, _ = blend_weights(corrected.alpha)
     out = composite(smoothed_weights, corrected.rgb, slots.depth)
     in_image = grid.in_image()
-    num_corrected = jnp.sum(corrected.corrected)
+    num_corrected = jnp.sum(corrected.corrected & in_image[:, None])
     stats = cb.CBKNNStats(
         k_map=k_map,
         rho_map=rho,
-        mean_shift_px=jnp.sum(corrected.shift_px) / jnp.maximum(num_corrected, 1),
+        mean_shift_px=jnp.sum(jnp.where(in_image[:, None], corrected.shift_px, 0.0)) / jnp.maximum(num_corrected, 1),
         fraction_fewer_than_k=jnp.sum(in_image & (selection.num_kept < k_pixel)) / jnp.sum(in_image),
     )
     return out, stats
