@@ -16,20 +16,6 @@ class UserError(Exception):
     """An error caused by the user's input; printed without a traceback."""
 
 
-def _add_demo(sub) -> None:
-    p = sub.add_parser("demo", help="render the built-in synthetic scene and write the images")
-    p.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output directory")
-    p.set_defaults(func=_cmd_demo)
-
-
-def _cmd_demo(args) -> int:
-    from gsjax.demo import run_demo
-
-    for line in run_demo(args.out):
-        print(line)
-    return 0
-
-
 # The layouts gsjax.data.open_sequence reads (gsjax.data.READERS; not imported here, to keep --help fast).
 DATASETS = ("tum", "replica", "scannet", "7scenes")
 
@@ -145,21 +131,127 @@ def _cmd_synth(args) -> int:
     return 0
 
 
+PRESETS = ("cpu", "replica", "tum", "scannet")
+CBKNN_MODES = ("off", "code_parity", "paper")
+SYNTHETIC_FRAMES = 30  # frames of `gsjax run --dataset synthetic` unless --max-frames says otherwise
+
+
+def _add_run(sub) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run SLAM on a sequence and write trajectory, metrics, plots, renders, map and checkpoints",
+        description="Run SLAM on a sequence. Any config field can be overridden by its dotted name, e.g. "
+        "--tracking.iters 60 --mapping.lr_means 2e-3 --cbknn.params.alpha 0.3 (see gsjax/slam/config.py).",
+    )
+    p.add_argument("--dataset", choices=DATASETS + ("synthetic",), required=True)
+    p.add_argument("--path", type=Path, default=None, help="dataset directory (not needed for synthetic)")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--preset", choices=PRESETS, default="cpu", help="configuration preset (default cpu)")
+    p.add_argument("--cbknn", choices=CBKNN_MODES, default="off", help="CB-KNN mode (default off = SplaTAM)")
+    p.add_argument("--max-frames", type=int, default=None)
+    p.add_argument("--stride", type=int, default=1)
+    p.add_argument("--downscale", type=int, default=None,
+                   help="integer image reduction (default: to about 80 px wide for the cpu preset, else 1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
+    p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk and checkpoint (default 8)")
+    p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_run, accepts_overrides=True)
+
+
+def _parse_overrides(tokens: list[str]) -> dict[str, str]:
+    """``--a.b value`` / ``--a.b=value`` pairs -> {"a.b": "value"}."""
+    overrides, i = {}, 0
+    while i < len(tokens):
+        token = tokens[i]
+        if not token.startswith("--") or "." not in token:
+            raise UserError(f"unrecognised argument {token!r} (config overrides look like --tracking.iters 60)")
+        if "=" in token:
+            name, value = token[2:].split("=", 1)
+            i += 1
+        else:
+            if i + 1 >= len(tokens):
+                raise UserError(f"{token} needs a value")
+            name, value = token[2:], tokens[i + 1]
+            i += 2
+        overrides[name] = value
+    return overrides
+
+
+def _open_run_sequence(args):
+    """The sequence to run on, with the downscale the preset implies."""
+    from gsjax.runner import default_downscale
+
+    if args.stride < 1 or (args.max_frames is not None and args.max_frames < 1):
+        raise UserError("--stride and --max-frames must be >= 1")
+    if args.dataset == "synthetic":
+        from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+
+        base = SyntheticConfig()
+        factor = args.downscale or default_downscale(base.width, args.preset)
+        if factor < 1 or base.width % factor or base.height % factor:
+            raise UserError(f"--downscale {factor} must divide the synthetic {base.width}x{base.height} image")
+        frames = args.max_frames or SYNTHETIC_FRAMES
+        config = SyntheticConfig(width=base.width // factor, height=base.height // factor, num_frames=frames,
+                                 speed=float(args.stride), seed=args.seed)
+        return synthetic_sequence(config), factor
+    from gsjax.data import open_sequence
+
+    if args.path is None:
+        raise UserError(f"--dataset {args.dataset} needs --path DIR")
+    if not args.path.is_dir():
+        raise UserError(f"--path {args.path}: no such directory")
+    probe = open_sequence(args.dataset, args.path, max_frames=1)
+    factor = args.downscale or default_downscale(probe.intrinsics.width, args.preset)
+    sequence = open_sequence(args.dataset, args.path, max_frames=args.max_frames, stride=args.stride,
+                             downscale=factor)
+    return sequence, factor
+
+
+def _cmd_run(args) -> int:
+    import logging
+
+    from gsjax.runner import RunOptions, run_slam, summary_lines
+    from gsjax.slam.config import apply_overrides, preset, with_cbknn_mode
+
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    logging.getLogger("gsjax").setLevel(logging.INFO)
+    for noisy in ("absl", "orbax", "jax"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
+    config = apply_overrides(with_cbknn_mode(preset(args.preset), args.cbknn), args.overrides)
+    sequence, factor = _open_run_sequence(args)
+    options = RunOptions(out=args.out, chunk=args.chunk, seed=args.seed, resume=args.resume,
+                         eval_every=args.eval_every, progress=not args.no_progress)
+    describe = dict(dataset=args.dataset, path=str(args.path) if args.path else None, preset=args.preset,
+                    cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides,
+                    sequence=sequence.name)
+    print(f"gsjax run: {sequence!r}, preset {args.preset}, CB-KNN {args.cbknn}, downscale {factor} -> {args.out}",
+          flush=True)
+    metrics = run_slam(sequence, config, options, describe=describe)
+    for line in summary_lines(metrics, args.out):
+        print(line)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gsjax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_demo, _add_eval, _add_synth):
+    for add in (_add_run, _add_eval, _add_synth):
         add(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra and not getattr(args, "accepts_overrides", False):
+        parser.error(f"unrecognised arguments: {' '.join(extra)}")
     from gsjax.compilation_cache import enable_compilation_cache
 
     enable_compilation_cache()
     try:
+        args.overrides = _parse_overrides(extra)
         return int(args.func(args) or 0)
     except (UserError, ValueError, FileNotFoundError) as err:
         print(f"gsjax {args.command}: error: {err}", file=sys.stderr)

@@ -147,21 +147,36 @@ def depth_l1(depth: jax.Array, depth_gt: jax.Array) -> jax.Array:
     return jnp.sum(err) / jnp.sum(valid)
 
 
+def ms_ssim_scales(height: int, width: int) -> int:
+    """How many of MS-SSIM's 5 scales an image of this size supports (at least 1)."""
+    levels = len(MS_SSIM_WEIGHTS)
+    while levels > 1 and min(height, width) <= (WINDOW_SIZE - 1) * 2 ** (levels - 1):
+        levels -= 1
+    return levels
+
+
 @jax.jit
 def render_metrics_splatam(color, depth, color_gt, depth_gt) -> dict[str, jax.Array]:
     """One frame's metrics as SplaTAM's final evaluation computes them (method_spec B.3).
 
     Both colour images are multiplied by the valid-GT-depth mask (invalid pixels count as zero error but stay in
-    the denominators); the render is not clamped. Colour [H, W, 3] in [0, 1], depth [H, W] (m).
+    the denominators); the render is not clamped. Colour [H, W, 3] in [0, 1], depth [H, W] (m). Images smaller than
+    MS-SSIM's 161 px use its first scales only (weights renormalised; ``ms_ssim_scales`` says how many), and SSIM is
+    reported as well.
 
     Returns:
-      {"psnr_db": psnr_splatam, "ms_ssim": ms_ssim, "depth_l1_m": depth_l1}.
+      {"psnr_db": psnr_splatam, "ms_ssim": ms_ssim, "ms_ssim_scales": n, "ssim": ssim, "depth_l1_m": depth_l1}.
     """
     valid = valid_depth_mask(depth_gt)[..., None]
     masked = jnp.where(valid, color, 0.0)
     masked_gt = jnp.where(valid, color_gt, 0.0)
+    levels = ms_ssim_scales(*color.shape[:2])
+    weights = MS_SSIM_WEIGHTS[:levels]
+    weights = tuple(w / sum(weights) for w in weights)
     return {
         "psnr_db": psnr_splatam(masked, masked_gt),
-        "ms_ssim": ms_ssim(masked, masked_gt),
+        "ms_ssim": ms_ssim(masked, masked_gt, weights),
+        "ms_ssim_scales": levels,
+        "ssim": ssim(masked, masked_gt),
         "depth_l1_m": depth_l1(depth, depth_gt),
     }

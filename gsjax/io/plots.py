@@ -44,11 +44,13 @@ def plot_trajectory_top_view(
     per-frame offsets drawn as thin grey segments.
 
     Args:
-      est_positions, gt_positions: [N, 3] camera centres (m), row i of one matching row i of the other.
+      est_positions, gt_positions: [N, 3] camera centres (m), row i of one matching row i of the other;
+        ``gt_positions`` may be None (a sequence without ground truth: the estimate alone).
       plane: "xy", "xz", "yz", or "auto" (the two axes along which the GT extends most).
     """
     est = np.asarray(est_positions, np.float64)
-    gt = np.asarray(gt_positions, np.float64)
+    has_gt = gt_positions is not None
+    gt = np.asarray(gt_positions if has_gt else est_positions, np.float64)
     if est.shape != gt.shape or est.ndim != 2 or est.shape[1] != 3:
         raise ValueError(f"positions must both have shape [N, 3], got {list(est.shape)} and {list(gt.shape)}")
     if plane == "auto":
@@ -60,10 +62,12 @@ def plot_trajectory_top_view(
     names = "xyz"
     fig = Figure(figsize=(6, 6))
     ax = fig.add_subplot()
-    offsets = np.stack([est[:, [a, b]], gt[:, [a, b]]], axis=1)  # [N, 2 ends, 2 coords]
-    ax.add_collection(LineCollection(offsets, colors="0.75", linewidths=0.5, zorder=1))
-    ax.plot(gt[:, a], gt[:, b], color="black", linewidth=1.5, label="ground truth", zorder=2)
-    ax.plot(est[:, a], est[:, b], color="tab:blue", linewidth=1.2, label="estimate (aligned)", zorder=3)
+    if has_gt:
+        offsets = np.stack([est[:, [a, b]], gt[:, [a, b]]], axis=1)  # [N, 2 ends, 2 coords]
+        ax.add_collection(LineCollection(offsets, colors="0.75", linewidths=0.5, zorder=1))
+        ax.plot(gt[:, a], gt[:, b], color="black", linewidth=1.5, label="ground truth", zorder=2)
+    label = "estimate (aligned)" if has_gt else "estimate"
+    ax.plot(est[:, a], est[:, b], color="tab:blue", linewidth=1.2, label=label, zorder=3)
     ax.scatter(gt[:1, a], gt[:1, b], color="black", marker="o", s=25, zorder=4, label="start")
     ax.set_xlabel(f"{names[a]} (m)")
     ax.set_ylabel(f"{names[b]} (m)")

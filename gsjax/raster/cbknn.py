@@ -38,8 +38,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import camera_center, rotation_angle
-from gsjax.raster.composite import Slots
-from gsjax.raster.project import Projected, gaussian_alpha
+from gsjax.raster.composite import Slots, slot_alpha
+from gsjax.raster.project import Projected
 
 SELECT_MODES = ("first_k", "top_weight")
 SHIFT_MODES = ("unit", "fraction")
@@ -178,12 +178,15 @@ def pixel_cells(pixels: jax.Array, height: int, width: int, cell: int) -> jax.Ar
 
 
 class Corrected(NamedTuple):
-    """Per-slot compositing inputs after the correction: alpha [P, K], rgb [P, K, 3] (depth is unchanged)."""
+    """Per-slot compositing inputs after the correction, all [K, P]: alpha, colour r, g, b (depth is unchanged),
+    ``corrected`` (bool, the slots of G_p) and ``shift_px`` (|u' - u| in px, 0 outside G_p)."""
 
     alpha: jax.Array
-    rgb: jax.Array
-    corrected: jax.Array  # [P, K] bool, the slots of G_p
-    shift_px: jax.Array  # [P, K] |u' - u| (px), 0 outside G_p
+    r: jax.Array
+    g: jax.Array
+    b: jax.Array
+    corrected: jax.Array
+    shift_px: jax.Array
 
 
 def _safe_divide(numerator, denominator):
@@ -193,17 +196,17 @@ def _safe_divide(numerator, denominator):
 
 
 def correction_mask(slots: Slots, weights: jax.Array, k_pixel: jax.Array, cbknn: CBKNN) -> jax.Array:
-    """[P, K] bool: which slots form G_p (no gradient). ``weights`` are the canonical blend weights."""
-    num_slots = slots.valid.shape[-1]
+    """[K, P] bool: which slots form G_p (no gradient). ``weights`` [K, P] are the canonical blend weights."""
+    num_slots = slots.valid.shape[0]
     if cbknn.select == "first_k":
-        return slots.valid & (jnp.arange(num_slots)[None, :] < k_pixel[:, None])
+        return slots.valid & (jnp.arange(num_slots)[:, None] < k_pixel[None, :])
     # top_weight: the k_pixel largest canonical blend weights (ties to the nearer slot), kept in depth order.
     k_top = min(cbknn.k_max, num_slots)
-    key = jnp.where(slots.valid, jax.lax.stop_gradient(weights), -1.0)
+    key = jnp.where(slots.valid, jax.lax.stop_gradient(weights), -1.0).T  # [P, K]
     _, top = jax.lax.top_k(key, k_top)  # [P, k_top] slot positions, best first
     rank_ok = jnp.arange(k_top)[None, :] < k_pixel[:, None]
-    chosen = jnp.zeros(slots.valid.shape, bool).at[jnp.arange(top.shape[0])[:, None], top].max(rank_ok)
-    return chosen & slots.valid
+    chosen = jnp.zeros(key.shape, bool).at[jnp.arange(top.shape[0])[:, None], top].max(rank_ok)
+    return chosen.T & slots.valid
 
 
 def correct_slots(
@@ -212,53 +215,55 @@ def correct_slots(
     """Apply D.5 to the slots of every pixel.
 
     Args:
-      slots: gathered contributor slots [P, K] (depth order); pixels: [P, 2] (u, v);
-      alpha: canonical per-slot alpha f_k [P, K]; weights: canonical blend weights [P, K];
+      slots: projected contributor slots [K, P] (depth order); pixels: [P, 2] (u, v);
+      alpha: canonical per-slot alpha f_k [K, P]; weights: canonical blend weights [K, P];
       k_pixel: [P] int32 kernel size per pixel; cbknn: the configuration.
     """
     mask = correction_mask(slots, weights, k_pixel, cbknn)
+    num_slots = alpha.shape[0]
     # first_k only ever corrects the first k_max slots: work on that prefix and pass the rest through.
-    width = min(cbknn.k_max, alpha.shape[-1]) if cbknn.select == "first_k" else alpha.shape[-1]
-    head = lambda x: x[:, :width]  # noqa: E731
-    new_alpha, rgb, shift_px = _correct(
+    width = min(cbknn.k_max, num_slots) if cbknn.select == "first_k" else num_slots
+    head = lambda x: x[:width]  # noqa: E731
+    new_alpha, r, g, b, shift_px = _correct(
         jax.tree_util.tree_map(head, slots), pixels, head(alpha), head(mask), cbknn
     )
-    rest_alpha = jnp.zeros_like(alpha[:, width:]) if cbknn.truncate else alpha[:, width:]
+    rest_alpha = jnp.zeros_like(alpha[width:]) if cbknn.truncate else alpha[width:]
+    join = lambda first, rest: jnp.concatenate([first, rest], axis=0)  # noqa: E731
     return Corrected(
-        alpha=jnp.concatenate([new_alpha, rest_alpha], axis=1),
-        rgb=jnp.concatenate([rgb, slots.rgb[:, width:]], axis=1),
+        alpha=join(new_alpha, rest_alpha),
+        r=join(r, slots.r[width:]),
+        g=join(g, slots.g[width:]),
+        b=join(b, slots.b[width:]),
         corrected=mask,
-        shift_px=jnp.concatenate([shift_px, jnp.zeros_like(alpha[:, width:])], axis=1),
+        shift_px=join(shift_px, jnp.zeros_like(alpha[width:])),
     )
 
 
 def _correct(slots: Slots, pixels, alpha, mask, cbknn: CBKNN):
-    """D.5 on slots [P, W] with G_p given by ``mask``: (alpha' [P, W], rgb' [P, W, 3], |shift| [P, W] px)."""
+    """D.5 on slots [W, P] with G_p given by ``mask``: (alpha', r', g', b', |shift| px), each [W, P]."""
     m = mask.astype(alpha.dtype)
-    count = jnp.sum(m, axis=-1, keepdims=True)
-    centroid = _safe_divide(jnp.sum(m[..., None] * slots.uv, axis=-2), count)  # [P, 2]
-    offset = centroid[:, None, :] - slots.uv
+    count = jnp.sum(m, axis=0)
+    centroid_u = _safe_divide(jnp.sum(m * slots.u, axis=0), count)  # [P]
+    centroid_v = _safe_divide(jnp.sum(m * slots.v, axis=0), count)
+    offset_u, offset_v = centroid_u[None] - slots.u, centroid_v[None] - slots.v
     if cbknn.shift_mode == "unit":
         # The direction carries no gradient: its Jacobian is singular (~1/eps) where a centre sits on C_p.
-        offset = jax.lax.stop_gradient(offset)
-        distance = jnp.sqrt(jnp.sum(offset**2, axis=-1, keepdims=True))
-        shift = cbknn.alpha * (offset / (distance + cbknn.eps))
+        offset_u, offset_v = jax.lax.stop_gradient(offset_u), jax.lax.stop_gradient(offset_v)
+        scale = cbknn.alpha / (jnp.sqrt(offset_u * offset_u + offset_v * offset_v) + cbknn.eps)
     else:
-        shift = cbknn.alpha * offset
+        scale = cbknn.alpha
+    shift_u, shift_v = scale * offset_u, scale * offset_v
     if cbknn.position:
-        shifted_uv = jnp.where(mask[..., None], slots.uv + shift, slots.uv)
-        dx = pixels[:, None, 0] - shifted_uv[..., 0]
-        dy = pixels[:, None, 1] - shifted_uv[..., 1]
-        shifted_alpha = jnp.where(slots.valid, gaussian_alpha(dx, dy, slots.conic, slots.opacity), 0.0)
-        shift_px = jnp.where(mask, jnp.sqrt(jnp.sum(jax.lax.stop_gradient(shift) ** 2, axis=-1)), 0.0)
+        shifted_alpha = slot_alpha(
+            slots, pixels, u=jnp.where(mask, slots.u + shift_u, slots.u), v=jnp.where(mask, slots.v + shift_v, slots.v)
+        )
+        shift_px = jax.lax.stop_gradient(jnp.where(mask, jnp.sqrt(shift_u * shift_u + shift_v * shift_v), 0.0))
     else:
         shifted_alpha = alpha
         shift_px = jnp.zeros_like(alpha)
+    colours = (slots.r, slots.g, slots.b)
     if cbknn.colour:
-        consensus_weights = _safe_divide(m * alpha, jnp.sum(m * alpha, axis=-1, keepdims=True))
-        consensus = jnp.einsum("pk,pkc->pc", consensus_weights, slots.rgb)
-        rgb = jnp.where(mask[..., None], consensus[:, None, :], slots.rgb)
-    else:
-        rgb = slots.rgb
+        consensus_weights = _safe_divide(m * alpha, jnp.sum(m * alpha, axis=0, keepdims=True))
+        colours = tuple(jnp.where(mask, jnp.sum(consensus_weights * c, axis=0, keepdims=True), c) for c in colours)
     fallback = jnp.zeros_like(alpha) if cbknn.truncate else alpha
-    return jnp.where(mask, shifted_alpha, fallback), rgb, shift_px
+    return (jnp.where(mask, shifted_alpha, fallback),) + colours + (shift_px,)

@@ -33,8 +33,11 @@ class RasterSettings:
       tile_size: tile side (px).
       tile_capacity: M, depth-sorted candidates kept per tile.
       max_contributors: K, contributor slots per pixel (the first K along the front-to-back walk).
-      intersections_per_gaussian: sizes the static buffer of (tile, Gaussian) pairs:
-        ``max(ceil(value * N), num_tiles * tile_capacity)``.
+      intersections_per_gaussian, intersections_per_pixel: size the static buffer of (tile, Gaussian) pairs,
+        ``L = max(min(ceil(a N), ceil(b H W)), min(N, tile_capacity) * num_tiles)`` for N slots: a few per Gaussian,
+        bounded by a few per pixel when the map holds many more Gaussians than are in view (a SLAM map's capacity),
+        and never less than every tile's full list when N is small. Pairs beyond L (the farthest) are counted
+        in the stats.
       tiles_per_batch: tiles processed together in the selection pass (bounds its memory).
       near: near-plane distance (m); Gaussians with camera z <= near are culled.
 
@@ -46,6 +49,7 @@ class RasterSettings:
     tile_capacity: int = dataclasses.field(default=512, metadata=dict(static=True))
     max_contributors: int = dataclasses.field(default=64, metadata=dict(static=True))
     intersections_per_gaussian: float = dataclasses.field(default=4.0, metadata=dict(static=True))
+    intersections_per_pixel: float = dataclasses.field(default=16.0, metadata=dict(static=True))
     tiles_per_batch: int = dataclasses.field(default=512, metadata=dict(static=True))
     near: float = 0.2
 
@@ -54,11 +58,10 @@ class RasterSettings:
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"RasterSettings.{name} must be a positive int, got {value!r}")
-        if not (isinstance(self.intersections_per_gaussian, (int, float)) and self.intersections_per_gaussian > 0):
-            raise ValueError(
-                f"RasterSettings.intersections_per_gaussian must be a positive number, got "
-                f"{self.intersections_per_gaussian!r}"
-            )
+        for name in ("intersections_per_gaussian", "intersections_per_pixel"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0):
+                raise ValueError(f"RasterSettings.{name} must be a positive number, got {value!r}")
         near_checkable = isinstance(self.near, (int, float, np.ndarray, np.generic, jax.Array))
         if near_checkable and _is_concrete(self.near) and not (
             np.isfinite(np.asarray(self.near)).all() and np.all(np.asarray(self.near) > 0)
@@ -66,7 +69,11 @@ class RasterSettings:
             raise ValueError(f"RasterSettings.near must be a positive finite number (m), got {self.near!r}")
 
     def intersection_capacity(self, num_gaussians: int, grid: TileGrid) -> int:
-        return max(math.ceil(self.intersections_per_gaussian * num_gaussians), grid.num_tiles * self.tile_capacity)
+        """The static number L of (tile, Gaussian) pairs binned for a map of ``num_gaussians`` slots."""
+        per_gaussian = math.ceil(self.intersections_per_gaussian * num_gaussians)
+        per_pixel = math.ceil(self.intersections_per_pixel * grid.width * grid.height)
+        full_lists = min(num_gaussians, self.tile_capacity) * grid.num_tiles
+        return max(min(per_gaussian, per_pixel), full_lists)
 
 
 class RenderStats(NamedTuple):
@@ -226,13 +233,13 @@ def _render(
             projected, tiles, grid, settings.max_contributors, settings.tiles_per_batch
         )
     with jax.named_scope("composite"):
-        slots = gather_slots(projected, selection.ids)
+        slots = gather_slots(gaussians, w2c, intrinsics, settings.near, selection.ids)
         pixels = grid.pixel_coords().reshape(-1, 2)
         alpha = slot_alpha(slots, pixels)
         weights, final_transmittance = blend_weights(alpha)
         cbknn_stats = None
         if cbknn is None:
-            out = composite(weights, slots.rgb, slots.depth)
+            out = composite(weights, slots.r, slots.g, slots.b, slots.depth)
         else:
             with jax.named_scope("cbknn"):
                 out, cbknn_stats = _smoothed(projected, slots, pixels, alpha, weights, selection, grid, cbknn, motion)
@@ -271,13 +278,13 @@ def _smoothed(projected, slots, pixels, alpha, weights, selection, grid, cbknn, 
     k_pixel = k_map.reshape(-1)[cb.pixel_cells(pixels, height, width, cbknn.cell)]
     corrected = cb.correct_slots(slots, pixels, alpha, weights, k_pixel, cbknn)
     smoothed_weights, _ = blend_weights(corrected.alpha)
-    out = composite(smoothed_weights, corrected.rgb, slots.depth)
+    out = composite(smoothed_weights, corrected.r, corrected.g, corrected.b, slots.depth)
     in_image = grid.in_image()
-    num_corrected = jnp.sum(corrected.corrected & in_image[:, None])
+    num_corrected = jnp.sum(corrected.corrected & in_image[None, :])
     stats = cb.CBKNNStats(
         k_map=k_map,
         rho_map=rho,
-        mean_shift_px=jnp.sum(jnp.where(in_image[:, None], corrected.shift_px, 0.0)) / jnp.maximum(num_corrected, 1),
+        mean_shift_px=jnp.sum(jnp.where(in_image[None, :], corrected.shift_px, 0.0)) / jnp.maximum(num_corrected, 1),
         fraction_fewer_than_k=jnp.sum(in_image & (selection.num_kept < k_pixel)) / jnp.sum(in_image),
     )
     return out, stats

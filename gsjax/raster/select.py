@@ -96,7 +96,7 @@ def _walk(features, ids, count, pixels, incomplete, k):
         f = jax.lax.dynamic_index_in_dim(entries, m, axis=0, keepdims=False)  # [b, 6]
         dx = pixels[..., 0] - f[:, None, 0]
         dy = pixels[..., 1] - f[:, None, 1]
-        alpha = gaussian_alpha(dx, dy, f[:, None, 2:5], f[:, None, 5])
+        alpha = gaussian_alpha(dx, dy, f[:, None, 2], f[:, None, 3], f[:, None, 4], f[:, None, 5])
         contributes = alpha >= ALPHA_MIN  # empty entries have opacity 0
         log_t = log_t + jnp.where(contributes, jnp.log1p(-alpha), 0.0)
         keep = contributes & (log_t >= _LOG_T_MIN)

@@ -19,6 +19,7 @@ from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
 
 CBKNN_MODES = ("off", "code_parity", "paper")
+SLAM_MAX_CONTRIBUTORS = 96
 TRACKING_OPTIMIZERS = ("adam", "lm")
 BEST_POSE = ("pre_step", "post_step")
 
@@ -217,7 +218,9 @@ class SlamConfig:
 
     Attributes:
       tracking, mapping, densify, cbknn: the stage configs.
-      raster: rasterizer settings.
+      raster: rasterizer settings. SLAM maps carry many young, semi-transparent Gaussians (opacity 0.5 at
+        birth): measured up to ~100 contributors per pixel before T < 1e-4, so the SLAM default keeps 96 slots
+        per pixel (the rasterizer's own default, 64, fits converged SplaTAM-density maps).
       keyframe_every: a keyframe every this many frames (plus frame 0 and the second-to-last frame).
       scene_radius_depth_ratio: scene radius = max depth of frame 0 / this (used by pruning).
     """
@@ -226,7 +229,7 @@ class SlamConfig:
     mapping: MappingConfig = MappingConfig()
     densify: DensifyConfig = DensifyConfig()
     cbknn: CBKNNConfig = CBKNNConfig()
-    raster: RasterSettings = RasterSettings()
+    raster: RasterSettings = RasterSettings(max_contributors=SLAM_MAX_CONTRIBUTORS)
     keyframe_every: int = static(5)
     scene_radius_depth_ratio: float = 3.0
 
@@ -269,9 +272,13 @@ def preset(name: str) -> SlamConfig:
             scene_radius_depth_ratio=3.0,
         )
     if name == "cpu":
+        # About 80x60 input (see the runner's downscale). A pixel there is ~8x a full-resolution pixel, so the map
+        # needs a correspondingly larger step on the means to remove the depth bias of blending within a pixel,
+        # and tracking compares D / S (young maps have S < 1, and D = sum w z would pull the camera along its axis).
         return SlamConfig(
-            tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=2e-3),
-            mapping=MappingConfig(iters=30, window_size=10, overlap_samples=800, overlap_margin=2.5),
+            tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=2e-3, normalized_depth=True),
+            mapping=MappingConfig(iters=30, window_size=10, lr_means=1e-3, overlap_samples=800,
+                                  overlap_margin=2.5),
             cbknn=_paper_cbknn(8.0),
             scene_radius_depth_ratio=2.0,
         )

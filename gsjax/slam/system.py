@@ -34,7 +34,8 @@ class StepOutputs(NamedTuple):
       mapping_loss: [] last mapping iteration's loss; num_gaussians: [] active after the step;
       added, dropped: [] Gaussians densified / not inserted for lack of capacity; keyframe: [] bool;
       gamma: [] motion used by CB-KNN; nonfinite: [] skipped tracking iterations; truncated: [] bool, the
-      densification render was truncated by the rasterizer's capacities.
+      densification render was truncated by the rasterizer's capacities; residual: [] the largest
+      transmittance that truncation left in that render.
     """
 
     w2c: jax.Array
@@ -47,6 +48,7 @@ class StepOutputs(NamedTuple):
     gamma: jax.Array
     nonfinite: jax.Array
     truncated: jax.Array
+    residual: jax.Array
 
 
 def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics) -> tuple[SlamState, StepOutputs]:
@@ -112,11 +114,26 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
         gamma=gamma,
         nonfinite=nonfinite,
         truncated=view.truncated,
+        residual=view.residual,
     )
     return new_state, outputs
 
 
 @jax.jit
-def run_chunk(state: SlamState, frames: Frame, config: SlamConfig, intrinsics: Intrinsics):
-    """``lax.scan`` of :func:`step` over a chunk of frames stacked along a leading axis -> (state, outputs)."""
-    return jax.lax.scan(lambda s, f: step(s, f, config, intrinsics), state, frames)
+def run_chunk(state: SlamState, frames: Frame, valid: jax.Array, config: SlamConfig, intrinsics: Intrinsics):
+    """``lax.scan`` of :func:`step` over a chunk of frames stacked along a leading axis -> (state, outputs).
+
+    ``valid`` [C] bool marks real frames; padding frames (a short last chunk padded to the chunk size, so it
+    reuses the compiled program) leave the state untouched and give zero outputs.
+    """
+
+    def body(state, inputs):
+        frame, is_real = inputs
+
+        def skip(state, frame):
+            _, zeros = jax.eval_shape(lambda s, f: step(s, f, config, intrinsics), state, frame)
+            return state, jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), zeros)
+
+        return jax.lax.cond(is_real, lambda s, f: step(s, f, config, intrinsics), skip, state, frame)
+
+    return jax.lax.scan(body, state, (frames, valid))

@@ -15,17 +15,20 @@ from gsjax.slam.config import SlamConfig
 
 class View(NamedTuple):
     """What the losses and densification read from a render: color [H, W, 3], depth (sum w z) [H, W],
-    silhouette [H, W], depth_sq [H, W], and ``truncated`` (any pixel cut by the rasterizer's capacities)."""
+    silhouette [H, W], depth_sq [H, W], ``truncated`` (any pixel cut by the rasterizer's capacities) and
+    ``residual`` (the largest transmittance left at such a cut)."""
 
     color: jax.Array
     depth: jax.Array
     silhouette: jax.Array
     depth_sq: jax.Array
     truncated: jax.Array
+    residual: jax.Array
 
 
 def _view(out) -> View:
-    return View(out.color, out.depth, out.silhouette, out.depth_sq, out.stats.truncated)
+    return View(out.color, out.depth, out.silhouette, out.depth_sq, out.stats.truncated,
+                out.stats.max_residual_transmittance)
 
 
 def render_view(

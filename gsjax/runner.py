@@ -1,0 +1,362 @@
+"""The imperative shell of ``gsjax run``: stream chunks of frames through the jitted SLAM scan, checkpoint,
+grow capacity, report progress, and write the outputs.
+
+The pure core is :func:`gsjax.slam.system.run_chunk`. Between chunks this module:
+
+* checkpoints the state (orbax) so ``--resume`` continues exactly where the run stopped;
+* grows the map capacity (doubling, logged) when a chunk could not insert every new Gaussian, and re-runs that
+  chunk from its saved starting state, so no Gaussian is ever dropped;
+* shows a progress bar (frame, tracking loss, Gaussians, ATE so far when ground truth exists, frames/s).
+
+At the end it evaluates the trajectory (both ATE variants, RPE), renders the evaluation frames with the final
+map (canonical rendering) for PSNR / MS-SSIM / depth L1, and writes ``trajectory.txt``, ``metrics.json``,
+``trajectory.png``, ``renders/``, ``map.ply`` and ``config.json`` atomically.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gsjax.camera import Intrinsics
+from gsjax.data.frame import Frame, stack_frames, to_device
+from gsjax.data.sequence import Sequence
+from gsjax.slam.config import SlamConfig, config_to_dict
+from gsjax.slam.state import SlamState, grow_capacity, initial_state, keyframe_capacity_for
+from gsjax.slam.system import StepOutputs, run_chunk
+
+log = logging.getLogger("gsjax")
+
+CPU_TARGET_WIDTH = 80  # the cpu preset processes about 80x60 pixels
+
+
+@dataclasses.dataclass(frozen=True)
+class RunOptions:
+    """Shell options of a run (not part of the traced config).
+
+    Attributes:
+      out: output directory.
+      chunk: frames per jitted scan chunk (and per checkpoint).
+      seed: PRNG seed of the run.
+      resume: continue from the newest checkpoint in ``out/checkpoints``.
+      eval_every: render-metric frames are t = 0 and (t + 1) % eval_every == 0 (SplaTAM's rule).
+      capacity: initial map capacity (default: 2 H W).
+      progress: show the progress bar.
+      samples: number of render-vs-input panels written to ``renders/``.
+    """
+
+    out: Path
+    chunk: int = 8
+    seed: int = 0
+    resume: bool = False
+    eval_every: int = 5
+    capacity: int | None = None
+    progress: bool = True
+    samples: int = 3
+
+    def __post_init__(self):
+        for name in ("chunk", "eval_every", "samples"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if self.capacity is not None and self.capacity < 1:
+            raise ValueError(f"--capacity must be >= 1, got {self.capacity}")
+
+
+def default_downscale(width: int, preset: str) -> int:
+    """The cpu preset reduces the input to about 80 px across; other presets keep the native resolution."""
+    return max(1, round(width / CPU_TARGET_WIDTH)) if preset == "cpu" else 1
+
+
+# ------------------------------------------------------------------------------------------------ the run
+
+
+class _Progress:
+    """A tqdm bar over frames (or nothing), updated once per chunk."""
+
+    def __init__(self, total: int, initial: int, enabled: bool):
+        self._bar = None
+        if enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, initial=initial, unit="frame", dynamic_ncols=True)
+
+    def update(self, frames: int, **fields) -> None:
+        if self._bar is not None:
+            self._bar.set_postfix(fields, refresh=False)
+            self._bar.update(frames)
+
+    def write(self, message: str) -> None:
+        if self._bar is not None:
+            self._bar.write(message)
+        else:
+            print(message, flush=True)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+def _pad_chunk(frames: list[Frame], size: int) -> tuple[Frame, np.ndarray]:
+    """Stack ``frames`` and pad to ``size`` with copies of the last one; (chunk, valid mask [size])."""
+    valid = np.arange(size) < len(frames)
+    padded = frames + [frames[-1]] * (size - len(frames))
+    return to_device(stack_frames(padded)), valid
+
+
+def _outputs_to_lists(outputs: StepOutputs, count: int) -> dict:
+    return {name: np.asarray(value)[:count].tolist() for name, value in outputs._asdict().items()}
+
+
+def _ate_so_far(w2c: np.ndarray, gt_c2w: np.ndarray, gt_valid: np.ndarray) -> float | None:
+    from gsjax.eval.trajectory import ate_rmse_c2w
+
+    n = len(w2c)
+    valid = gt_valid[:n] & gt_valid[0]
+    if n < 3 or valid.sum() < 3:
+        return None
+    try:
+        return ate_rmse_c2w(np.linalg.inv(w2c), _gt_relative(gt_c2w[:n]), valid).value_m
+    except ValueError:
+        return None
+
+
+def _gt_relative(gt_c2w: np.ndarray) -> np.ndarray:
+    """GT camera-to-world poses re-based on frame 0 (the SLAM world frame is the first camera)."""
+    return np.linalg.inv(gt_c2w[0]) @ gt_c2w
+
+
+def run_slam(
+    sequence: Sequence,
+    config: SlamConfig,
+    options: RunOptions,
+    *,
+    describe: dict | None = None,
+    on_chunk: Callable[[int], None] | None = None,
+) -> dict:
+    """Run SLAM on ``sequence`` with ``config``; write every output under ``options.out``; return the metrics.
+
+    ``describe`` (dataset name, path, preset, ...) is recorded in ``config.json`` and ``metrics.json``.
+    ``on_chunk(frames_done)`` is called after each checkpoint (tests use it to interrupt a run).
+    """
+    from gsjax.io.checkpoint import Checkpoints
+
+    out = Path(options.out)
+    out.mkdir(parents=True, exist_ok=True)
+    intrinsics = sequence.intrinsics
+    height, width = intrinsics.height, intrinsics.width
+    total = len(sequence)
+    if total < 1:
+        raise ValueError(f"sequence {sequence.name!r} has no frames")
+    record = dict(describe or {}, frames=total, width=width, height=height, chunk=options.chunk, seed=options.seed,
+                  config=config_to_dict(config))
+    _write_json(out / "config.json", record)
+
+    checkpoints = Checkpoints(out / "checkpoints")
+    timings = dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0)
+    capacity = options.capacity or 2 * height * width
+    kf_capacity = keyframe_capacity_for(total, config.keyframe_every)
+    state = initial_state(capacity, height, width, kf_capacity, total, options.seed)
+    outputs: dict[str, list] = {}
+    done = 0
+    if options.resume and checkpoints.latest() is not None:
+        step = checkpoints.latest()
+        meta = checkpoints.read_meta(step)
+        _check_resumable(meta, record, out)
+        like = initial_state(meta["capacity"], height, width, kf_capacity, total, options.seed)
+        state, meta = checkpoints.restore(step, like)
+        outputs, done, capacity = meta["outputs"], meta["frames_done"], meta["capacity"]
+        log.info("resumed from checkpoint at frame %d (capacity %d)", done, capacity)
+
+    _, gt_c2w, gt_valid = sequence.gt_trajectory()
+    progress = _Progress(total, done, options.progress)
+    start = time.perf_counter()
+    first_chunk_s = None
+    try:
+        while done < total:
+            count = min(options.chunk, total - done)
+            t0 = time.perf_counter()
+            frames, valid = _pad_chunk([sequence.read_host(i) for i in range(done, done + count)], options.chunk)
+            timings["read_frames_s"] += time.perf_counter() - t0
+            while True:
+                t0 = time.perf_counter()
+                new_state, chunk_out = run_chunk(state, frames, jnp.asarray(valid), config, intrinsics)
+                chunk_out = jax.device_get(chunk_out)
+                elapsed = time.perf_counter() - t0
+                dropped = int(np.sum(chunk_out.dropped[:count]))
+                if dropped == 0:
+                    timings["slam_s"] += elapsed
+                    break
+                # Not every new Gaussian found a slot: double the capacity and redo the chunk from its start.
+                timings["regrow_s"] += elapsed
+                capacity *= 2
+                progress.write(f"capacity: {dropped} new Gaussians found no free slot at frames {done}-"
+                               f"{done + count - 1}; growing the map to {capacity} slots and re-running the chunk")
+                state = grow_capacity(state, capacity)
+            if first_chunk_s is None:
+                first_chunk_s = elapsed
+            state = new_state
+            for name, values in _outputs_to_lists(chunk_out, count).items():
+                outputs.setdefault(name, []).extend(values)
+            done += count
+            t0 = time.perf_counter()
+            checkpoints.save(done, state, dict(frames_done=done, capacity=capacity, outputs=outputs,
+                                               record=_resume_key(record)))
+            timings["checkpoint_s"] += time.perf_counter() - t0
+            w2c = np.asarray(outputs["w2c"], np.float64)
+            ate = _ate_so_far(w2c, gt_c2w, gt_valid)
+            fields = dict(loss=f"{outputs['tracking_loss'][-1]:.1f}", gaussians=outputs["num_gaussians"][-1],
+                          fps=f"{done / max(time.perf_counter() - start, 1e-9):.2f}")
+            if ate is not None:
+                fields["ate_cm"] = f"{100 * ate:.2f}"
+            progress.update(count, **fields)
+            if on_chunk is not None:
+                on_chunk(done)
+    finally:
+        progress.close()
+        checkpoints.close()
+
+    timings["compile_s_estimate"] = _compile_estimate(first_chunk_s, timings["slam_s"], total, options.chunk)
+    return _finish(sequence, config, options, state, outputs, timings, record)
+
+
+def _resume_key(record: dict) -> dict:
+    return {k: record[k] for k in ("frames", "width", "height", "chunk", "seed", "config")}
+
+
+def _check_resumable(meta: dict, record: dict, out: Path) -> None:
+    saved = meta.get("record", {})
+    for key, value in _resume_key(record).items():
+        if saved.get(key) != value:
+            raise ValueError(
+                f"--resume: the checkpoint in {out / 'checkpoints'} was made with a different {key} "
+                f"({saved.get(key)!r} vs {value!r}); resume with the same options, or use a new --out"
+            )
+
+
+def _compile_estimate(first_chunk_s, slam_s, total, chunk) -> float | None:
+    chunks = math.ceil(total / chunk)
+    if first_chunk_s is None or chunks < 2:
+        return None
+    steady = (slam_s - first_chunk_s) / (chunks - 1)
+    return max(0.0, first_chunk_s - steady)
+
+
+# --------------------------------------------------------------------------------------------- the outputs
+
+
+def _write_json(path: Path, obj) -> None:
+    from gsjax.io.atomic import atomic_write_json
+
+    atomic_write_json(path, obj)
+
+
+def _finish(sequence, config, options, state: SlamState, outputs: dict, timings: dict, record: dict) -> dict:
+    from gsjax.eval.trajectory import ate_rmse_c2w, evaluate_trajectory
+    from gsjax.io.ply import write_ply
+    from gsjax.io.plots import plot_trajectory_top_view
+    from gsjax.io.trajectory import write_tum_trajectory
+
+    out = Path(options.out)
+    t0 = time.perf_counter()
+    timestamps, gt_c2w, gt_valid = sequence.gt_trajectory()
+    est_c2w = np.linalg.inv(np.asarray(outputs["w2c"], np.float64))
+    # Express the estimate in the dataset's world frame when frame 0 has ground truth (so its numbers can be
+    # compared with the dataset's files directly); the SLAM world frame is the first camera.
+    anchor = gt_c2w[0] if gt_valid[0] else np.eye(4)
+    est_world = anchor @ est_c2w
+    write_tum_trajectory(out / "trajectory.txt", timestamps, est_world)
+
+    metrics: dict = dict(dataset=record.get("dataset"), frames=len(est_c2w), width=record["width"],
+                         height=record["height"])
+    if gt_valid.sum() >= 3:
+        valid = gt_valid & gt_valid[0]
+        gt_rel = _gt_relative(gt_c2w) if gt_valid[0] else gt_c2w
+        traj = evaluate_trajectory(timestamps, est_c2w, timestamps, gt_rel, gt_valid=valid)
+        metrics["trajectory"] = traj
+        identity = np.broadcast_to(np.eye(4), est_c2w.shape).copy()
+        metrics["constant_pose_ate_rmse_c2w_cm"] = 100 * ate_rmse_c2w(identity, gt_rel, valid).value_m
+        aligned = ate_rmse_c2w(est_c2w, gt_rel, valid)
+        plot_trajectory_top_view(out / "trajectory.png", aligned.alignment.apply_points(est_c2w[aligned.used, :3, 3]),
+                                 gt_rel[aligned.used, :3, 3],
+                                 title=f"{sequence.name}: ATE RMSE {100 * aligned.value_m:.2f} cm")
+    else:
+        metrics["trajectory"] = None
+        plot_trajectory_top_view(out / "trajectory.png", est_c2w[:, :3, 3], None,
+                                 title=f"{sequence.name} (no ground truth)")
+    metrics["render"] = _render_metrics(sequence, config, options, state, outputs)
+    write_ply(out / "map.ply", state.gaussians)
+    timings["outputs_s"] = time.perf_counter() - t0
+    slam_frames_per_s = len(est_c2w) / timings["slam_s"] if timings["slam_s"] > 0 else None
+    metrics.update(
+        frames_per_s=slam_frames_per_s,
+        seconds_per_frame=(1.0 / slam_frames_per_s) if slam_frames_per_s else None,
+        stage_timings_s=timings,
+        num_gaussians=int(state.gaussians.num_active()),
+        capacity=int(state.gaussians.capacity),
+        keyframes=int(state.keyframes.count),
+        nonfinite_tracking_iterations=int(state.nonfinite_tracking),
+        frames_with_truncated_render=int(np.sum(outputs["truncated"])),
+        max_truncation_residual=float(np.max(outputs["residual"])),
+        config=record["config"],
+    )
+    _write_json(out / "metrics.json", metrics)
+    return metrics
+
+
+def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: SlamState, outputs: dict) -> dict:
+    """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0: the final map
+    rendered canonically at the estimated poses, compared with the input (masked by valid depth)."""
+    from gsjax.eval.image import render_metrics_splatam
+    from gsjax.io.images import render_panel, save_rgb_png
+    from gsjax.raster import render
+
+    total = len(outputs["w2c"])
+    frames = [t for t in range(total) if t == 0 or (t + 1) % options.eval_every == 0]
+    samples = set(np.unique(np.linspace(0, len(frames) - 1, min(options.samples, len(frames))).round().astype(int)))
+    render_fn = jax.jit(lambda g, w: render(g, w, sequence.intrinsics, config.raster))
+    per_frame = []
+    (Path(options.out) / "renders").mkdir(parents=True, exist_ok=True)
+    for position, t in enumerate(frames):
+        frame = sequence.read_host(t)
+        out = render_fn(state.gaussians, jnp.asarray(outputs["w2c"][t], jnp.float32))
+        values = render_metrics_splatam(out.color, out.depth, jnp.asarray(frame.color), jnp.asarray(frame.depth))
+        per_frame.append({k: float(v) for k, v in values.items()})
+        if position in samples:
+            panel = render_panel(np.asarray(out.color), frame.color, np.asarray(out.depth), frame.depth)
+            zoom = max(1, 320 // panel.shape[1])  # small (cpu-preset) images: nearest-neighbour enlarged to view
+            panel = np.repeat(np.repeat(panel, zoom, axis=0), zoom, axis=1)
+            save_rgb_png(Path(options.out) / "renders" / f"frame_{t:06d}.png", panel)
+    mean = {k: float(np.mean([p[k] for p in per_frame])) for k in per_frame[0]}
+    return dict(frames=frames, mean=dict(mean, depth_l1_cm=100 * mean["depth_l1_m"]), per_frame=per_frame)
+
+
+def summary_lines(metrics: dict, out: Path) -> list[str]:
+    """A short human summary of a finished run."""
+    lines = []
+    traj = metrics.get("trajectory")
+    if traj:
+        lines.append(f"ATE RMSE (camera centres) {traj['ate_rmse_c2w_cm']:.2f} cm; SplaTAM's mean-of-w2c ATE "
+                     f"{traj['ate_splatam_mean_w2c_cm']:.2f} cm; constant pose {metrics['constant_pose_ate_rmse_c2w_cm']:.2f} cm")
+    render_mean = metrics["render"]["mean"]
+    lines.append(f"PSNR {render_mean['psnr_db']:.2f} dB, MS-SSIM {render_mean['ms_ssim']:.3f} "
+                 f"({int(render_mean['ms_ssim_scales'])} scales), SSIM {render_mean['ssim']:.3f}, depth L1 "
+                 f"{render_mean['depth_l1_cm']:.2f} cm on {len(metrics['render']['frames'])} frames")
+    if metrics["frames_per_s"]:
+        lines.append(f"{metrics['frames']} frames, {metrics['seconds_per_frame']:.2f} s/frame, "
+                     f"{metrics['num_gaussians']} Gaussians")
+    lines.append(f"outputs in {Path(out).resolve()}: trajectory.txt metrics.json trajectory.png renders/ map.ply "
+                 "config.json checkpoints/")
+    return lines
+
+
+def dump_json(obj) -> str:
+    return json.dumps(obj, indent=2)
