@@ -157,6 +157,8 @@ def _add_run(sub) -> None:
     p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk and checkpoint (default 8)")
     p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--synthetic-noise", action="store_true",
+                   help="synthetic dataset only: Kinect-like sensor effects (depth noise, holes, colour noise, blur)")
     p.set_defaults(func=_cmd_run, accepts_overrides=True)
 
 
@@ -195,9 +197,13 @@ def _open_run_sequence(args):
         frames = args.max_frames or SYNTHETIC_FRAMES
         config = SyntheticConfig(width=base.width // factor, height=base.height // factor, num_frames=frames,
                                  speed=float(args.stride), seed=args.seed)
+        if args.synthetic_noise:
+            config = config.with_sensor_noise()
         return synthetic_sequence(config), factor
     from gsjax.data import open_sequence
 
+    if args.synthetic_noise:
+        raise UserError("--synthetic-noise applies to --dataset synthetic only")
     if args.path is None:
         raise UserError(f"--dataset {args.dataset} needs --path DIR")
     if not args.path.is_dir():

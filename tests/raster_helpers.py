@@ -16,6 +16,22 @@ MEAN_ABS_TOL = 2e-4
 
 _compiled: dict[str, object] = {}
 
+# Finite-difference gradient checks (shared by the canonical and the CB-KNN gradient tests).
+FIELDS = ("means", "log_scales", "logit_opacities", "rgb")
+STEP = {"means": 1e-6, "log_scales": 1e-6, "logit_opacities": 1e-6, "rgb": 1e-4, "pose": 1e-6}  # float64 FD steps
+REL_TOL = 2e-2
+GRAD_SEED = 1  # scenes.GRADIENT_SCENES at this seed have no float32-ambiguous pixel (checked in test_scenes.py)
+
+
+def loss_weights(height: int, width: int, seed: int = 0) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return dict(
+        color=rng.normal(size=(height, width, 3)),
+        depth=rng.normal(size=(height, width)),
+        silhouette=rng.normal(size=(height, width)),
+        depth_sq=rng.normal(size=(height, width)),
+    )
+
 
 def raster():
     """The module under test."""

@@ -25,7 +25,18 @@ import reference_render as rr
 import scenes
 from gsjax.camera import make_intrinsics, se3_exp
 from gsjax.gaussians import Gaussians
-from raster_helpers import assert_within_tolerance, errors, format_errors, raster, settings
+from raster_helpers import (
+    FIELDS,
+    GRAD_SEED,
+    REL_TOL,
+    STEP,
+    assert_within_tolerance,
+    errors,
+    format_errors,
+    loss_weights,
+    raster,
+    settings,
+)
 
 FIXED = dict(alpha=0.2, k0=5.0, beta=0.0, motion=0.0)
 ADAPTIVE = dict(alpha=0.25, k0=4.3, beta=0.37, motion=0.83)
@@ -418,20 +429,6 @@ def test_render_leaves_its_inputs_unchanged():
 # finite differences therefore hold it FIXED at its value at theta (``direction=`` of the reference), so they
 # differentiate u' = u + alpha * dir with dir constant. Fraction mode has no such term and is differenced as is.
 
-FIELDS = ("means", "log_scales", "logit_opacities", "rgb")
-STEP = {"means": 1e-6, "log_scales": 1e-6, "logit_opacities": 1e-6, "rgb": 1e-4, "pose": 1e-6}
-REL_TOL = 2e-2
-GRAD_SEED = 1  # scenes.GRADIENT_SCENES at seed 1 have no float32-ambiguous pixel
-
-
-def loss_weights(height: int, width: int, seed: int = 0) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    return dict(
-        color=rng.normal(size=(height, width, 3)),
-        depth=rng.normal(size=(height, width)),
-        silhouette=rng.normal(size=(height, width)),
-        depth_sq=rng.normal(size=(height, width)),
-    )
 
 
 def _loss(means, log_scales, logit_opacities, rgb, delta, active, w2c0, intr, weights, cb, motion):

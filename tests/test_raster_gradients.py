@@ -20,22 +20,8 @@ import reference_render as rr
 import scenes
 from gsjax.camera import make_intrinsics, se3_exp
 from gsjax.gaussians import Gaussians
-from raster_helpers import raster, settings, stats_dict
+from raster_helpers import FIELDS, GRAD_SEED, REL_TOL, STEP, loss_weights, raster, settings, stats_dict
 
-FIELDS = ("means", "log_scales", "logit_opacities", "rgb")
-STEP = {"means": 1e-6, "log_scales": 1e-6, "logit_opacities": 1e-6, "rgb": 1e-4, "pose": 1e-6}  # float64 FD steps
-REL_TOL = 2e-2
-GRAD_SEED = 1  # scenes.GRADIENT_SCENES at this seed have no float32-ambiguous pixel (checked in test_scenes.py)
-
-
-def loss_weights(height: int, width: int, seed: int = 0) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    return dict(
-        color=rng.normal(size=(height, width, 3)),
-        depth=rng.normal(size=(height, width)),
-        silhouette=rng.normal(size=(height, width)),
-        depth_sq=rng.normal(size=(height, width)),
-    )
 
 
 def weighted_sum(images, weights) -> float:
