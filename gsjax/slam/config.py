@@ -67,6 +67,9 @@ class TrackingConfig:
       sil_threshold: pixels enter the loss where the rendered silhouette exceeds this (and depth is valid).
       best_pose: ``"pre_step"`` keeps the pose whose loss was lowest; ``"post_step"`` reproduces SplaTAM's
         off-by-one (stores the pose after the step taken from the best loss).
+      lr_final_ratio: the Adam step sizes decay exponentially over the iterations to this fraction (1 = constant,
+        SplaTAM). Adam's steps do not shrink near the optimum, so a constant step leaves the pose jittering within
+        about one step; decaying it lets the last iterations settle.
       normalized_depth: compare the observed depth with the rendered depth divided by the silhouette, D / S,
         instead of SplaTAM's D = sum w z. With S < 1 (young maps, low resolution) D underestimates depth by
         (1 - S) z, which biases the camera along its axis by about that much; D / S removes the bias.
@@ -79,6 +82,7 @@ class TrackingConfig:
     lambda_color: float = 0.5
     lambda_depth: float = 1.0
     sil_threshold: float = 0.99
+    lr_final_ratio: float = 1.0
     best_pose: str = static("pre_step")
     normalized_depth: bool = static(False)
 
@@ -90,6 +94,7 @@ class TrackingConfig:
             raise ValueError(f"tracking.best_pose must be one of {BEST_POSE}, got {self.best_pose!r}")
         for name in ("lr_trans", "lr_rot", "lambda_color", "lambda_depth"):
             _check_number("tracking", name, getattr(self, name), 0.0)
+        _check_number("tracking", "lr_final_ratio", self.lr_final_ratio, 0.0, 1.0, strict_low=True)
         _check_number("tracking", "sil_threshold", self.sil_threshold, 0.0, 1.0)
 
 

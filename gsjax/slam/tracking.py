@@ -71,12 +71,15 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig) -> TrackResult:
     adam = optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-8)
     delta0 = jnp.zeros(6, jnp.float32)
 
-    def iteration(carry, _):
+    # Exponential decay from 1 to lr_final_ratio over the iterations (constant when the ratio is 1).
+    decay = jnp.power(cfg.lr_final_ratio, jnp.arange(cfg.iters, dtype=jnp.float32) / max(cfg.iters - 1, 1))
+
+    def iteration(carry, factor):
         delta, opt_state, best_delta, best_loss, nonfinite = carry
         loss, grad = jax.value_and_grad(loss_fn)(delta)
         finite = jnp.isfinite(loss) & jnp.all(jnp.isfinite(grad))
         updates, new_opt_state = adam.update(grad, opt_state)
-        new_delta = delta - step_size * updates
+        new_delta = delta - factor * step_size * updates
         better = finite & (loss < best_loss)
         candidate = delta if cfg.best_pose == "pre_step" else new_delta
         best_delta = jnp.where(better, candidate, best_delta)
@@ -86,7 +89,7 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig) -> TrackResult:
         return (delta, opt_state, best_delta, best_loss, nonfinite + (~finite).astype(jnp.int32)), None
 
     init = (delta0, adam.init(delta0), delta0, jnp.float32(jnp.inf), jnp.int32(0))
-    (_, _, best_delta, best_loss, nonfinite), _ = jax.lax.scan(iteration, init, None, length=cfg.iters)
+    (_, _, best_delta, best_loss, nonfinite), _ = jax.lax.scan(iteration, init, decay)
     return TrackResult(se3_exp(best_delta) @ w2c_init, best_loss, nonfinite)
 
 
