@@ -1,0 +1,98 @@
+"""Shared tiny setup of the SLAM tests: a 40x30 synthetic room, a tiny config, and tree comparisons.
+
+Compilation dominates on CPU (about 12 s per distinct SLAM scan program), so every test that runs the scan uses
+the same static config (:func:`tiny_config`, per CB-KNN mode) and the same shapes (``FRAMES`` frames, chunks of
+``CHUNK``, capacity ``CAPACITY`` = the runner's default 2 H W, keyframe capacity of a ``FRAMES``-frame run). The
+runner and CLI tests are given options that build the very same program, so within one pytest process each
+program compiles once.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gsjax.data.frame import Frame, stack_frames, to_device
+from gsjax.data.sequence import Sequence
+from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+from gsjax.slam.config import SlamConfig, apply_overrides, preset, with_cbknn_mode
+from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
+
+WIDTH, HEIGHT = 40, 30  # = the default synthetic 160x120 with `gsjax run --downscale 4`
+FRAMES = 6
+CHUNK = 3
+CAPACITY = 2 * WIDTH * HEIGHT  # the runner's default capacity
+# Tiny iteration counts: the scans over iterations compile to the same program whatever the count.
+TINY_OVERRIDES = {"tracking.iters": "3", "mapping.iters": "2"}
+
+
+@functools.lru_cache(maxsize=None)
+def tiny_sequence(num_frames: int = FRAMES) -> Sequence:
+    """The synthetic room at 40x30 (exact depth, every pixel valid, GT poses)."""
+    return synthetic_sequence(SyntheticConfig(width=WIDTH, height=HEIGHT, num_frames=num_frames))
+
+
+def tiny_config(mode: str = "off") -> SlamConfig:
+    """The ``cpu`` preset with CB-KNN ``mode`` and tiny iteration counts, built exactly as ``gsjax run --preset cpu
+    --cbknn MODE --tracking.iters 3 --mapping.iters 2`` builds it (so the CLI test reuses the compiled scan)."""
+    return apply_overrides(with_cbknn_mode(preset("cpu"), mode), TINY_OVERRIDES)
+
+
+def frames(begin: int, end: int, num_frames: int = FRAMES) -> Frame:
+    """Frames [begin, end) of :func:`tiny_sequence`, stacked along a leading axis, on device."""
+    sequence = tiny_sequence(num_frames)
+    return to_device(stack_frames([sequence.read_host(i) for i in range(begin, end)]))
+
+
+def initial(seed: int = 0) -> SlamState:
+    """The state the runner starts a ``FRAMES``-frame run from (default capacity)."""
+    config = tiny_config()
+    return initial_state(CAPACITY, HEIGHT, WIDTH, keyframe_capacity_for(FRAMES, config.keyframe_every), FRAMES, seed)
+
+
+def relative_gt_w2c(num_frames: int = FRAMES) -> np.ndarray:
+    """[T, 4, 4] ground-truth world-to-camera poses in the SLAM world frame (the first camera), float64."""
+    _, c2w, _ = tiny_sequence(num_frames).gt_trajectory()
+    return np.linalg.inv(np.linalg.inv(c2w[0]) @ c2w)
+
+
+def _leaves(tree):
+    return jax.tree_util.tree_leaves_with_path(tree)
+
+
+def assert_trees_equal(actual, expected) -> None:
+    """Same structure and every leaf bit for bit equal (NaNs equal)."""
+    assert jax.tree_util.tree_structure(actual) == jax.tree_util.tree_structure(expected)
+    for (path, a), b in zip(_leaves(actual), jax.tree_util.tree_leaves(expected)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+
+
+def assert_trees_close(actual, expected, rtol: float, atol: float) -> None:
+    """Same structure; integer and bool leaves equal, floating leaves within ``rtol``/``atol``."""
+    assert jax.tree_util.tree_structure(actual) == jax.tree_util.tree_structure(expected)
+    for (path, a), b in zip(_leaves(actual), jax.tree_util.tree_leaves(expected)):
+        a, b = np.asarray(a), np.asarray(b)
+        name = jax.tree_util.keystr(path)
+        if np.issubdtype(a.dtype, np.floating):
+            np.testing.assert_allclose(a, b, rtol=rtol, atol=atol, err_msg=name)
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+def trees_differ(a, b) -> bool:
+    """Whether any floating leaf differs (to show that a comparison is not vacuous)."""
+    return any(
+        not np.array_equal(np.asarray(x), np.asarray(y))
+        for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b))
+    )
+
+
+def all_finite(tree) -> bool:
+    return all(
+        bool(jnp.all(jnp.isfinite(x)))
+        for x in jax.tree_util.tree_leaves(tree)
+        if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
+    )
