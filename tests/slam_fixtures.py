@@ -96,3 +96,57 @@ def all_finite(tree) -> bool:
         for x in jax.tree_util.tree_leaves(tree)
         if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
     )
+
+
+# ------------------------------------------------------------------------------ a one-frame map, and its mapping
+
+MAP_VIEWS = (0, 2)  # frames in the mapping window of the map fixtures (GT poses)
+
+
+def map_config() -> SlamConfig:
+    """The ``cpu`` preset (normalised-depth tracking) with 30 mapping iterations."""
+    return apply_overrides(preset("cpu"), {"mapping.iters": "30"})
+
+
+def first_frame_map():
+    """SplaTAM's initialisation from frame 0 (one Gaussian per pixel, world = first camera), H W slots."""
+    from gsjax.gaussians import gaussians_from_rgbd
+
+    frame = tiny_sequence()[0]
+    return gaussians_from_rgbd(frame.color, frame.depth, tiny_sequence().intrinsics, jnp.eye(4, dtype=jnp.float32))
+
+
+def window_views(frame_ids=MAP_VIEWS):
+    """:class:`gsjax.slam.mapping.Views` of the given frames at their GT poses (all keyframes, all valid)."""
+    from gsjax.slam.mapping import Views
+
+    chunk = frames(0, FRAMES)
+    ids = np.asarray(frame_ids)
+    count = len(ids)
+    return Views(color=chunk.color[ids], depth=chunk.depth[ids],
+                 w2c=jnp.asarray(relative_gt_w2c()[ids], jnp.float32), gamma=jnp.zeros(count, jnp.float32),
+                 keyframe=jnp.ones(count, bool), valid=jnp.ones(count, bool))
+
+
+def scene_radius(config: SlamConfig):
+    return jnp.max(tiny_sequence()[0].depth) / config.scene_radius_depth_ratio
+
+
+@functools.lru_cache(maxsize=None)
+def _map_window_jit():
+    from gsjax.slam.mapping import map_window
+
+    return jax.jit(map_window)
+
+
+def run_map_window(gaussians, seed: int = 0):
+    """``map_window`` over :func:`window_views` with :func:`map_config` (one compiled program for all callers)."""
+    config = map_config()
+    return _map_window_jit()(jax.random.PRNGKey(seed), gaussians, window_views(), tiny_sequence().intrinsics, config,
+                             scene_radius(config))
+
+
+@functools.lru_cache(maxsize=None)
+def mapped_map():
+    """:func:`first_frame_map` after 30 mapping iterations over frames 0 and 2."""
+    return run_map_window(first_frame_map()).gaussians
