@@ -145,8 +145,3 @@ def run_map_window(gaussians, seed: int = 0):
     return _map_window_jit()(jax.random.PRNGKey(seed), gaussians, window_views(), tiny_sequence().intrinsics, config,
                              scene_radius(config))
 
-
-@functools.lru_cache(maxsize=None)
-def mapped_map():
-    """:func:`first_frame_map` after 30 mapping iterations over frames 0 and 2."""
-    return run_map_window(first_frame_map()).gaussians
