@@ -59,7 +59,7 @@ def test_tracking_recovers_a_known_perturbation_of_a_rendered_map(rendered_scene
     config = tracking_config(optimizer, iters)
     result = track_jit(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, config, False, 0.0)
     trans, rot = pose_error(result.w2c, w2c_true)
-    # Measured at most 3.6% (Adam, 60 iterations) and < 0.1% (LM, 10 iterations) of the perturbation.
+    # Measured: at most 5.3% (Adam, 60 iterations) and 4e-6 (LM, 10 iterations) of the perturbation.
     assert trans < 0.1 * np.linalg.norm(delta[:3])
     assert rot < 0.1 * np.linalg.norm(delta[3:])
     assert int(result.nonfinite) == 0
