@@ -1,0 +1,140 @@
+"""SLAM config: presets build, dotted overrides with errors naming the field, dict round trip, traced vs static."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import pytest
+
+from gsjax.slam.config import (
+    PRESETS,
+    SlamConfig,
+    apply_overrides,
+    config_from_dict,
+    config_to_dict,
+    preset,
+    with_cbknn_mode,
+)
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_every_preset_builds_a_valid_config_with_cbknn_off(name):
+    config = preset(name)
+    assert isinstance(config, SlamConfig)
+    assert config.cbknn.mode == "off"  # presets are SplaTAM; the CB-KNN mode is chosen separately
+    for mode in ("off", "code_parity", "paper"):
+        assert with_cbknn_mode(config, mode).cbknn.mode == mode
+
+
+def test_presets_hold_the_per_dataset_values_of_the_spec():
+    # method_spec A.11 (iterations, window) and D.6 (K0 = 5 Replica, 8 TUM/ScanNet); scene radius ratio 3 / 2 / 3.
+    expected = {"replica": (40, 60, 24, 5.0, 3.0), "tum": (200, 30, 20, 8.0, 2.0), "scannet": (100, 30, 10, 8.0, 3.0)}
+    for name, (track_iters, map_iters, window, k0, ratio) in expected.items():
+        c = preset(name)
+        assert (c.tracking.iters, c.mapping.iters, c.mapping.window_size) == (track_iters, map_iters, window)
+        assert (c.cbknn.params.k0, c.scene_radius_depth_ratio) == (k0, ratio)
+        assert c.cbknn.lambda_color_keyframe == 0.6
+        assert (c.cbknn.params.alpha, c.cbknn.params.beta) == (0.2, 0.3)
+
+
+def test_unknown_preset_is_a_value_error_listing_the_presets():
+    with pytest.raises(ValueError, match="unknown preset 'nope'.*replica"):
+        preset("nope")
+
+
+def test_overrides_set_nested_fields_by_dotted_name_and_parse_each_type():
+    config = apply_overrides(
+        preset("cpu"),
+        {
+            "tracking.iters": "7",  # int
+            "tracking.optimizer": "lm",  # str
+            "tracking.normalized_depth": "false",  # bool
+            "mapping.lr_means": "2e-3",  # float
+            "mapping.prune_iters": "0,5,10",  # tuple
+            "cbknn.params.alpha": "0.35",  # two levels deep
+            "cbknn.mode": "paper",
+            "raster.near": "0.1",
+        },
+    )
+    assert config.tracking.iters == 7 and config.tracking.optimizer == "lm"
+    assert config.tracking.normalized_depth is False
+    assert config.mapping.lr_means == 2e-3 and config.mapping.prune_iters == (0, 5, 10)
+    assert config.cbknn.params.alpha == 0.35 and config.cbknn.mode == "paper"
+    assert config.raster.near == 0.1
+    # Everything else is untouched.
+    assert config.mapping.iters == preset("cpu").mapping.iters
+    assert config.cbknn.params.k0 == preset("cpu").cbknn.params.k0
+
+
+@pytest.mark.parametrize(
+    "name, value, message",
+    [
+        ("tracking.nope", "1", r"--tracking\.nope: unknown field 'nope'"),
+        ("nope", "1", r"--nope: unknown field 'nope'"),
+        ("tracking.iters.deeper", "1", r"--tracking\.iters\.deeper: 'deeper' is not a config section"),
+        ("tracking", "1", r"--tracking: cannot read '1' as TrackingConfig"),
+        ("tracking.iters", "abc", r"--tracking\.iters: cannot read 'abc' as int"),
+        ("tracking.iters", "2.5", r"--tracking\.iters: cannot read '2\.5' as int"),
+        ("tracking.normalized_depth", "maybe", r"--tracking\.normalized_depth: cannot read 'maybe' as bool"),
+        ("mapping.lr_rgb", "fast", r"--mapping\.lr_rgb: cannot read 'fast' as float"),
+        ("tracking.iters", "0", r"--tracking\.iters: .*tracking\.iters must be an int >= 1"),
+        ("tracking.optimizer", "sgd", r"--tracking\.optimizer: .*tracking\.optimizer must be one of"),
+        ("tracking.lr_trans", "-1", r"--tracking\.lr_trans: .*tracking\.lr_trans must be a finite number"),
+        ("tracking.lr_trans", "nan", r"--tracking\.lr_trans: .*tracking\.lr_trans must be a finite number"),
+        ("tracking.sil_threshold", "1.5", r"--tracking\.sil_threshold: .*must be a finite number >= 0.0 and <= 1.0"),
+        ("densify.init_opacity", "1", r"--densify\.init_opacity: .*init_opacity must be < 1"),
+        ("cbknn.mode", "always", r"--cbknn\.mode: .*cbknn\.mode must be one of"),
+        ("cbknn.params.alpha", "-0.1", r"--cbknn\.params\.alpha: .*CBKNN\.alpha must be finite and >= 0"),
+        ("mapping.window_size", "1", r"--mapping\.window_size: .*mapping\.window_size must be an int >= 2"),
+    ],
+)
+def test_overrides_reject_unknown_names_and_invalid_values_naming_the_field(name, value, message):
+    with pytest.raises(ValueError, match=message):
+        apply_overrides(preset("cpu"), {name: value})
+
+
+def test_paper_mode_rejects_a_kernel_larger_than_the_contributor_slots():
+    config = with_cbknn_mode(preset("cpu"), "paper")
+    with pytest.raises(ValueError, match=r"--raster\.max_contributors: .*cbknn\.params\.k_max \(16\) exceeds"):
+        apply_overrides(config, {"raster.max_contributors": "8"})
+    # Outside paper mode renders are never smoothed, so the same setting is fine.
+    assert apply_overrides(preset("cpu"), {"raster.max_contributors": "8"}).raster.max_contributors == 8
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_config_dict_round_trips_through_json(name):
+    config = apply_overrides(
+        with_cbknn_mode(preset(name), "paper"),
+        {"mapping.prune_iters": "3,4", "cbknn.params.select": "top_weight", "tracking.lr_rot": "1.25e-3"},
+    )
+    data = json.loads(json.dumps(config_to_dict(config)))
+    assert config_from_dict(data) == config
+    # Partial dicts fill in from the base.
+    assert config_from_dict({"tracking": {"iters": 9}}, base=config) == dataclasses.replace(
+        config, tracking=dataclasses.replace(config.tracking, iters=9)
+    )
+
+
+def test_config_from_dict_rejects_unknown_keys():
+    with pytest.raises(ValueError, match="unknown field 'bogus'"):
+        config_from_dict({"bogus": 1})
+    with pytest.raises(ValueError, match="unknown field 'bogus'"):
+        config_from_dict({"tracking": {"bogus": 1}})
+
+
+def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
+    """Changing a learning rate, loss weight or CB-KNN alpha/k0/beta keeps the treedef (no recompilation, vmap-able);
+    changing an iteration count, optimizer or mode changes it."""
+    base = preset("cpu")
+    structure = jax.tree_util.tree_structure(base)
+    traced = {"tracking.lr_trans": "0.01", "tracking.lambda_color": "0.3", "mapping.lr_rgb": "0.01",
+              "densify.sil_threshold": "0.4", "cbknn.params.alpha": "0.5", "cbknn.params.k0": "3",
+              "cbknn.params.beta": "0.1", "cbknn.lambda_color_keyframe": "0.7", "scene_radius_depth_ratio": "4"}
+    for name, value in traced.items():
+        assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) == structure, name
+    static = {"tracking.iters": "5", "tracking.optimizer": "lm", "mapping.window_size": "4", "cbknn.mode": "paper",
+              "cbknn.params.k_max": "8", "keyframe_every": "3", "raster.max_contributors": "32"}
+    for name, value in static.items():
+        assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) != structure, name

@@ -1,0 +1,89 @@
+"""Keyframe rule, CB-KNN mode switches, and the released code's 3D KNN smoothing of the overlap samples
+(``code_parity``, method_spec C.1): identity where the subset is one point, exact neighbour means without dropout,
+deterministic given the key, and a smoothing effect on noisy samples."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gsjax.slam.config import CBKNNConfig, preset, with_cbknn_mode
+from gsjax.slam.keyframes import smooth_points
+from gsjax.slam.views import is_keyframe
+
+
+def test_keyframes_are_frame_zero_every_fifth_and_the_second_to_last():
+    frames = jnp.arange(13)
+    keyframes = np.flatnonzero(np.asarray(is_keyframe(frames, 13, 5)))
+    np.testing.assert_array_equal(keyframes, [0, 4, 9, 11])
+
+
+def test_cbknn_modes_switch_render_and_overlap_smoothing():
+    config = preset("cpu")
+    off, parity, paper = (with_cbknn_mode(config, m).cbknn for m in ("off", "code_parity", "paper"))
+    assert (off.smooth_renders, off.smooth_overlap) == (False, False)
+    assert (parity.smooth_renders, parity.smooth_overlap) == (False, True)
+    assert (paper.smooth_renders, paper.smooth_overlap) == (True, False)
+    assert dataclasses.replace(paper, kf_overlap_smoothing=True).smooth_overlap  # optional in paper mode
+
+
+def noisy_plane(count=200, noise=0.01, seed=0):
+    """Points on the plane z = 0 over a unit square, with Gaussian noise along z (m)."""
+    rng = np.random.default_rng(seed)
+    return np.concatenate([rng.uniform(0, 1, (count, 2)), rng.normal(0, noise, (count, 1))], axis=1).astype(
+        np.float32
+    )
+
+
+def smoothing(**changes) -> CBKNNConfig:
+    return dataclasses.replace(with_cbknn_mode(preset("cpu"), "code_parity").cbknn, **changes)
+
+
+def test_smoothing_with_subsets_of_one_point_returns_the_points_unchanged():
+    # K = 2 or 3 with 40 % dropout gives a subset of max(1, floor(0.6 K)) = 1: the value is kept (method_spec C.1).
+    points = jnp.asarray(noisy_plane())
+    out = smooth_points(jax.random.PRNGKey(0), points, smoothing(smoothing_min_k=2, smoothing_max_k=3))
+    np.testing.assert_array_equal(np.asarray(out), np.asarray(points))
+
+
+@pytest.mark.parametrize("k", [2, 5, 9])
+def test_smoothing_without_dropout_is_the_mean_of_the_k_nearest_neighbours(k):
+    points = noisy_plane(count=60, seed=k)
+    config = smoothing(smoothing_min_k=k, smoothing_max_k=k, smoothing_base_k=min(6, k), smoothing_dropout=0.0)
+    out = np.asarray(smooth_points(jax.random.PRNGKey(3), jnp.asarray(points), config))
+    d2 = np.sum((points[:, None, :].astype(np.float64) - points[None, :, :]) ** 2, axis=-1)
+    nearest = np.argsort(d2, axis=1)[:, :k]  # self included
+    np.testing.assert_allclose(out, points[nearest].mean(axis=1), atol=1e-6)
+
+
+def test_smoothing_is_deterministic_given_the_key_and_random_across_keys():
+    points = jnp.asarray(noisy_plane())
+    config = smoothing()
+    first = np.asarray(smooth_points(jax.random.PRNGKey(7), points, config))
+    again = np.asarray(smooth_points(jax.random.PRNGKey(7), points, config))
+    other = np.asarray(smooth_points(jax.random.PRNGKey(8), points, config))
+    np.testing.assert_array_equal(first, again)
+    assert not np.array_equal(first, other)
+
+
+def test_default_smoothing_moves_noisy_samples_towards_their_neighbourhood():
+    """With the released code's parameters (K 2..16 by density, 40 % dropout) each point becomes the mean of a
+    subset of its nearest neighbours: it stays within its K_max-neighbourhood, the sparsest point (K = 2, subset
+    of one) is unchanged, and the noise across the plane shrinks."""
+    points = noisy_plane()
+    config = smoothing()
+    assert (config.smoothing_base_k, config.smoothing_min_k, config.smoothing_max_k) == (6, 2, 16)
+    assert config.smoothing_dropout == 0.4
+    out = np.asarray(smooth_points(jax.random.PRNGKey(0), jnp.asarray(points), config))
+    d2 = np.sum((points[:, None, :].astype(np.float64) - points[None, :, :]) ** 2, axis=-1)
+    ordered = np.sort(d2, axis=1)
+    reach = np.sqrt(ordered[:, 15])  # distance to the 16th nearest (self included)
+    assert np.all(np.linalg.norm(out - points, axis=1) <= reach + 1e-6)
+    sparsest = np.argmax(np.mean(ordered[:, :6], axis=1))  # lowest density 1 / mean d^2 over 6 nearest
+    np.testing.assert_array_equal(out[sparsest], points[sparsest])
+    assert np.std(out[:, 2]) < 0.8 * np.std(points[:, 2])
+    assert np.mean(np.linalg.norm(out - points, axis=1) > 0) > 0.5  # most points moved

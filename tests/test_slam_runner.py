@@ -1,0 +1,134 @@
+"""The runner shell (``run_slam``): capacity growth re-runs chunks and changes nothing, a resumed run equals the
+uninterrupted one bit for bit, and resuming with other options is refused."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from gsjax.io.checkpoint import Checkpoints
+from gsjax.runner import RunOptions, run_slam
+from gsjax.slam.config import apply_overrides
+from slam_fixtures import CAPACITY, CHUNK, FRAMES, tiny_config, tiny_sequence
+
+OUTPUTS = ("trajectory.txt", "map.ply")
+
+
+def options(out, **changes) -> RunOptions:
+    return RunOptions(out=out, **{"chunk": CHUNK, "progress": False, **changes})
+
+
+def saved_outputs(out):
+    """The per-frame outputs (every StepOutputs field, full float32 precision) of the newest checkpoint."""
+    checkpoints = Checkpoints(out / "checkpoints")
+    try:
+        return checkpoints.read_meta(checkpoints.latest())["outputs"]
+    finally:
+        checkpoints.close()
+
+
+def assert_same_run(out, metrics, reference_out, reference_metrics):
+    """Bit for bit the same trajectory, map and per-frame outputs, and the same evaluation."""
+    for name in OUTPUTS:
+        assert (out / name).read_bytes() == (reference_out / name).read_bytes(), name
+    assert saved_outputs(out) == saved_outputs(reference_out)
+    for key in ("trajectory", "render", "num_gaussians", "capacity", "keyframes", "nonfinite_tracking_iterations"):
+        assert metrics[key] == reference_metrics[key], key
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """An uninterrupted run with the default capacity (2 H W, enough for the whole sequence)."""
+    out = tmp_path_factory.mktemp("reference")
+    return out, run_slam(tiny_sequence(), tiny_config(), options(out))
+
+
+class Interrupt(Exception):
+    pass
+
+
+def interrupt(frames_done):
+    raise Interrupt(frames_done)
+
+
+@pytest.fixture(scope="module")
+def interrupted(tmp_path_factory):
+    """A run stopped by an exception right after its first checkpoint (frame CHUNK); tests work on copies."""
+    out = tmp_path_factory.mktemp("interrupted")
+    with pytest.raises(Interrupt):
+        run_slam(tiny_sequence(), tiny_config(), options(out), on_chunk=interrupt)
+    return out
+
+
+def copy_of(run_dir, tmp_path):
+    return shutil.copytree(run_dir, tmp_path / "run")
+
+
+def test_a_tiny_capacity_grows_by_rerunning_chunks_and_changes_nothing(tmp_path, capsys, reference):
+    """Capacity 600 < the 1200 Gaussians of frame 0: the first chunk is re-run at 1200, the second (which needs a
+    few more) at 2400. Measured: the trajectory, map and every per-frame output are bit for bit those of a run
+    started at 2400 (the first chunk's program has another capacity, and the result does not depend on it)."""
+    out = tmp_path / "small"
+    metrics = run_slam(tiny_sequence(), tiny_config(), options(out, capacity=600))
+    log = capsys.readouterr().out
+    assert "frames 0-2; growing the map to 1200 slots and re-running the chunk" in log
+    assert "frames 3-5; growing the map to 2400 slots and re-running the chunk" in log
+    assert metrics["capacity"] == CAPACITY
+    assert not any(saved_outputs(out)["dropped"])
+    assert metrics["stage_timings_s"]["regrow_s"] > 0
+    assert_same_run(out, metrics, *reference)
+
+
+def test_resume_after_an_interruption_reproduces_the_uninterrupted_run(tmp_path, interrupted, reference):
+    out = copy_of(interrupted, tmp_path)
+    checkpoints = Checkpoints(out / "checkpoints")
+    assert checkpoints.latest() == CHUNK
+    checkpoints.close()
+    assert not (out / "trajectory.txt").exists()
+    metrics = run_slam(tiny_sequence(), tiny_config(), options(out, resume=True))
+    assert_same_run(out, metrics, *reference)
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(seed=1), "different seed"),
+        (dict(chunk=2), "different chunk"),
+        (dict(config={"tracking.lr_trans": "0.003"}), "different config"),
+        (dict(frames=FRAMES - 1), "different frames"),
+    ],
+)
+def test_resuming_with_different_options_is_a_value_error_naming_the_option(tmp_path, interrupted, change, message):
+    out = copy_of(interrupted, tmp_path)
+    config = apply_overrides(tiny_config(), change.pop("config", {}))
+    sequence = tiny_sequence(change.pop("frames", FRAMES))
+    with pytest.raises(ValueError, match=rf"--resume: the checkpoint in .* was made with a {message} .*new --out"):
+        run_slam(sequence, config, options(out, resume=True, **change))
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="bug: run_slam writes config.json (the new options) before _check_resumable refuses them, so a refused "
+    "--resume leaves the run directory describing options it was never run with",
+)
+def test_a_refused_resume_leaves_the_run_directory_unchanged(tmp_path, interrupted):
+    out = copy_of(interrupted, tmp_path)
+    before = (out / "config.json").read_bytes()
+    with pytest.raises(ValueError):
+        run_slam(tiny_sequence(), tiny_config(), options(out, resume=True, seed=1))
+    assert json.loads((out / "config.json").read_bytes()) == json.loads(before)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="bug: after --resume, metrics.json's frames_per_s divides all frames of the run (6) by the SLAM time of "
+    "the resumed part only (3 frames): the timings restart at zero on resume but the frame count does not, so the "
+    "rate is inflated (about 2x here; seconds_per_frame and compile_s_estimate are off the same way)",
+)
+def test_frames_per_second_after_a_resume_counts_only_the_frames_it_timed(tmp_path, interrupted):
+    out = copy_of(interrupted, tmp_path)
+    metrics = run_slam(tiny_sequence(), tiny_config(), options(out, resume=True))
+    timed_frames = FRAMES - CHUNK  # this invocation's SLAM time covers the resumed chunk only
+    assert metrics["frames_per_s"] == pytest.approx(timed_frames / metrics["stage_timings_s"]["slam_s"])

@@ -1,0 +1,184 @@
+"""The SLAM scan: chunking does not change the result (bit for bit), padding frames are no-ops, one vmapped program
+over a batch of configs and states equals the separate runs, every CB-KNN mode runs, frame 0 initialises the map,
+and a frame whose tracking is non-finite keeps the predicted pose and is counted."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gsjax.camera import constant_velocity, orthonormalize
+from gsjax.slam.config import apply_overrides
+from gsjax.slam.system import run_chunk
+from slam_fixtures import (
+    CHUNK,
+    FRAMES,
+    HEIGHT,
+    WIDTH,
+    all_finite,
+    assert_trees_close,
+    assert_trees_equal,
+    frames,
+    initial,
+    tiny_config,
+    tiny_sequence,
+    trees_differ,
+)
+
+
+def concat(*outputs):
+    return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *outputs)
+
+
+def valid(*flags):
+    return jnp.asarray(flags, bool)
+
+
+@functools.lru_cache(maxsize=None)
+def run_first_chunk(mode: str = "off", seed: int = 0, overrides: tuple = ()):
+    """run_chunk over frames [0, CHUNK) from the initial state (cached: several tests compare with it)."""
+    config = apply_overrides(tiny_config(mode), dict(overrides))
+    return run_chunk(initial(seed), frames(0, CHUNK), jnp.ones(CHUNK, bool), config, tiny_sequence().intrinsics)
+
+
+# ------------------------------------------------------------------------------------------------- chunking
+
+
+@pytest.fixture(scope="module")
+def whole_run():
+    """All FRAMES frames in one chunk."""
+    return run_chunk(initial(), frames(0, FRAMES), jnp.ones(FRAMES, bool), tiny_config(), tiny_sequence().intrinsics)
+
+
+def test_two_chunks_give_bit_for_bit_the_state_and_outputs_of_one_chunk(whole_run):
+    intrinsics, config = tiny_sequence().intrinsics, tiny_config()
+    first_state, first_out = run_first_chunk()
+    state, second_out = run_chunk(first_state, frames(CHUNK, FRAMES), jnp.ones(FRAMES - CHUNK, bool), config,
+                                  intrinsics)
+    assert_trees_equal(state, whole_run[0])
+    assert_trees_equal(concat(first_out, second_out), whole_run[1])
+
+
+def test_padding_frames_leave_the_state_untouched_and_output_zeros(whole_run):
+    intrinsics, config = tiny_sequence().intrinsics, tiny_config()
+    first_state, _ = run_first_chunk()
+    # A short last chunk (frames 3, 4) padded with a copy of frame 4, as the runner pads it ...
+    chunk = jax.tree_util.tree_map(lambda x: x[jnp.array([0, 1, 1])], frames(CHUNK, FRAMES))
+    state, out = run_chunk(first_state, chunk, valid(True, True, False), config, intrinsics)
+    # ... equals five frames of the one-chunk program with its last entry marked invalid, and the first five
+    # frames of the whole run.
+    five_state, five_out = run_chunk(initial(), frames(0, FRAMES), valid(True, True, True, True, True, False),
+                                     config, intrinsics)
+    assert int(state.frame) == 5
+    assert_trees_equal(state, five_state)
+    assert_trees_equal(jax.tree_util.tree_map(lambda x: x[:5], five_out),
+                       jax.tree_util.tree_map(lambda x: x[:5], whole_run[1]))
+    for leaf in jax.tree_util.tree_leaves(out):
+        assert not np.any(np.asarray(leaf[2]))
+    # An all-padding chunk is a no-op.
+    same_state, _ = run_chunk(first_state, frames(CHUNK, FRAMES), valid(False, False, False), config, intrinsics)
+    assert_trees_equal(same_state, first_state)
+
+
+def test_frame_zero_initialises_the_map_from_every_valid_pixel_and_becomes_keyframe_zero(whole_run):
+    state, out = whole_run
+    np.testing.assert_array_equal(np.asarray(out.w2c[0]), np.eye(4))  # the first camera is the world frame
+    assert float(out.tracking_loss[0]) == 0.0 and int(out.nonfinite[0]) == 0
+    assert int(out.added[0]) == WIDTH * HEIGHT  # the synthetic room has valid depth everywhere
+    assert int(out.dropped.sum()) == 0 == int(state.dropped_gaussians)
+    np.testing.assert_array_equal(np.asarray(out.keyframe), [True, False, False, False, True, False])
+    assert int(state.keyframes.count) == 2
+    np.testing.assert_array_equal(np.asarray(state.keyframes.frame[:2]), [0, 4])
+    np.testing.assert_array_equal(np.asarray(state.keyframes.w2c[1]), np.asarray(out.w2c[4]))
+    assert int(state.frame) == FRAMES and all_finite(state) and all_finite(out)
+    assert np.all(np.asarray(out.tracking_loss[1:]) > 0)
+
+
+# ------------------------------------------------------------------------------------------------------ vmap
+
+SWEPT = (("tracking.lr_trans", "0.004"), ("cbknn.params.alpha", "0.5"), ("mapping.lr_rgb", "0.01"))
+
+
+def stack(a, b):
+    return jax.tree_util.tree_map(lambda x, y: jnp.stack([jnp.asarray(x), jnp.asarray(y)]), a, b)
+
+
+@pytest.mark.parametrize("mode", ["off", "paper"])
+def test_vmap_over_configs_and_states_equals_the_separate_runs(mode):
+    """One program over a batch of two configs (traced fields differ) and two initial states (seeds differ); in
+    ``paper`` mode CB-KNN acts on keyframe 0's densification and mapping and on the alpha that differs."""
+    config_a = tiny_config(mode)
+    config_b = apply_overrides(config_a, dict(SWEPT))
+    configs, states = stack(config_a, config_b), stack(initial(0), initial(1))
+    batched = jax.vmap(run_chunk, in_axes=(0, None, None, 0, None))(
+        states, frames(0, CHUNK), jnp.ones(CHUNK, bool), configs, tiny_sequence().intrinsics
+    )
+    separate = [run_first_chunk(mode, 0), run_first_chunk(mode, 1, SWEPT)]
+    for i, expected in enumerate(separate):
+        # Measured: up to 1e-4 absolute on tracking losses of ~200 (float32 sums reduced in another order) and
+        # 5e-6 on logit opacities; integers and masks equal.
+        assert_trees_close(jax.tree_util.tree_map(lambda x: x[i], batched), expected, rtol=1e-5, atol=1e-5)
+    # The comparison is not vacuous: the swept fields change the run (with the same seed).
+    assert trees_differ(run_first_chunk(mode, 0, SWEPT), run_first_chunk(mode, 0))
+
+
+# ---------------------------------------------------------------------------------------------- CB-KNN modes
+
+
+@pytest.mark.parametrize("mode", ["off", "code_parity", "paper"])
+def test_every_cbknn_mode_runs_without_nan(mode):
+    state, out = run_first_chunk(mode)
+    assert all_finite(state) and all_finite(out)
+    assert int(state.nonfinite_tracking) == 0 and int(state.dropped_gaussians) == 0
+    assert int(out.num_gaussians[-1]) >= WIDTH * HEIGHT
+
+
+def test_paper_mode_changes_the_run_through_keyframe_zero():
+    # Frame 0 is a keyframe: its densification and mapping renders are smoothed in paper mode.
+    assert trees_differ(run_first_chunk("paper"), run_first_chunk("off"))
+
+
+# ------------------------------------------------------------------------------------------------ non-finite
+
+
+def test_a_frame_with_non_finite_tracking_keeps_the_predicted_pose_and_is_counted():
+    """A NaN colour in frame 2 makes each of its tracking iterations non-finite: the frame keeps the
+    constant-velocity prediction from frames 0 and 1, and the skipped iterations are counted in the outputs and
+    the state."""
+    chunk = frames(0, CHUNK)
+    chunk = dataclasses.replace(chunk, color=chunk.color.at[2, 12, 20, 0].set(jnp.nan))
+    config = tiny_config()
+    state, out = run_chunk(initial(), chunk, jnp.ones(CHUNK, bool), config, tiny_sequence().intrinsics)
+    iters = config.tracking.iters
+    np.testing.assert_array_equal(np.asarray(out.nonfinite), [0, 0, iters])
+    assert int(state.nonfinite_tracking) == iters
+    predicted = orthonormalize(constant_velocity(out.w2c[0], out.w2c[1]))
+    np.testing.assert_allclose(np.asarray(out.w2c[2]), np.asarray(predicted), atol=1e-6)
+    clean_state, clean_out = run_first_chunk()
+    assert_trees_equal(jax.tree_util.tree_map(lambda x: x[:2], out), jax.tree_util.tree_map(lambda x: x[:2],
+                                                                                             clean_out))
+    assert not np.allclose(np.asarray(clean_out.w2c[2]), np.asarray(predicted), atol=1e-6)  # tracking moves it
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="bug: mapping has no non-finite guard (unlike tracking). One NaN colour pixel in frame 2 gives NaN "
+    "mapping gradients; Adam writes NaN into the Gaussians and it spreads through the following renders, "
+    "densification and mapping: by frame 5 every slot has NaN means, scales, opacities and a NaN colour channel, "
+    "densification adds Gaussians for whole frames (all 2400 slots filled, 1832 dropped), mapping_loss is NaN from "
+    "frame 2 on, and the state counts nothing for it. run_slam would fail only at the end, when write_ply's "
+    "check_gaussians rejects the map.",
+)
+def test_a_non_finite_frame_does_not_poison_the_map():
+    chunk = frames(0, FRAMES)
+    chunk = dataclasses.replace(chunk, color=chunk.color.at[2, 12, 20, 0].set(jnp.nan))
+    state, _ = run_chunk(initial(), chunk, jnp.ones(FRAMES, bool), tiny_config(), tiny_sequence().intrinsics)
+    active = np.asarray(state.gaussians.active)
+    for field in ("means", "log_scales", "logit_opacities", "rgb"):
+        values = np.asarray(getattr(state.gaussians, field)).reshape(len(active), -1)
+        assert np.isfinite(values[active]).all(), field

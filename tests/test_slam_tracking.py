@@ -1,0 +1,172 @@
+"""Camera tracking: recovery of a known SE(3) perturbation (Adam and LM), non-finite iterations, and CB-KNN's
+keyframe tracking (smoothed render, lambda_c = 0.6) in ``paper`` mode."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gsjax.camera import se3_exp, se3_log
+from gsjax.raster import render
+from gsjax.slam.config import apply_overrides, with_cbknn_mode
+from gsjax.slam.losses import rendered_depth, tracking_loss
+from gsjax.slam.tracking import _track_adam, track
+from gsjax.slam.views import render_view
+from slam_fixtures import first_frame_map, map_config, relative_gt_w2c, tiny_sequence
+
+track_jit = jax.jit(track)
+TRUE_FRAME = 2  # the true pose: frame 2's GT pose relative to frame 0 (not the identity)
+PERTURBATIONS = {
+    # (rho m, phi rad): 3-4 cm and about 1.5 degrees, i.e. about a pixel at 40x30.
+    "a": (0.03, -0.02, 0.02, 0.02, -0.015, 0.01),
+    "b": (-0.02, 0.03, -0.03, -0.01, 0.02, 0.015),
+}
+
+
+def tracking_config(optimizer: str, iters: int, mode: str = "off"):
+    return apply_overrides(with_cbknn_mode(map_config(), mode),
+                           {"tracking.optimizer": optimizer, "tracking.iters": str(iters)})
+
+
+@pytest.fixture(scope="module")
+def rendered_scene():
+    """(map from frame 0, observed colour, observed depth, true w2c): the observation is the map's own render at
+    the true pose (depth D / S where S > 0.5, else invalid), so the tracking loss is zero exactly there."""
+    gaussians = first_frame_map()
+    w2c_true = jnp.asarray(relative_gt_w2c()[TRUE_FRAME], jnp.float32)
+    config = map_config()
+    view = render_view(gaussians, w2c_true, tiny_sequence().intrinsics, config, False, 0.0)
+    depth = jnp.where(view.silhouette > 0.5, rendered_depth(view, config.tracking.normalized_depth), 0.0)
+    return gaussians, view.color, depth, w2c_true
+
+
+def pose_error(w2c, w2c_true):
+    """(translation norm m, rotation norm rad) of the left error exp(e) = w2c w2c_true^-1."""
+    e = np.asarray(se3_log(w2c @ jnp.linalg.inv(w2c_true)))
+    return np.linalg.norm(e[:3]), np.linalg.norm(e[3:])
+
+
+@pytest.mark.parametrize("perturbation", sorted(PERTURBATIONS))
+@pytest.mark.parametrize("optimizer, iters", [("adam", 60), ("lm", 10)])
+def test_tracking_recovers_a_known_perturbation_of_a_rendered_map(rendered_scene, optimizer, iters, perturbation):
+    gaussians, color, depth, w2c_true = rendered_scene
+    delta = jnp.asarray(PERTURBATIONS[perturbation], jnp.float32)
+    w2c_init = se3_exp(delta) @ w2c_true
+    config = tracking_config(optimizer, iters)
+    result = track_jit(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, config, False, 0.0)
+    trans, rot = pose_error(result.w2c, w2c_true)
+    # Measured: at most 5.3% (Adam, 60 iterations) and 4e-6 (LM, 10 iterations) of the perturbation.
+    assert trans < 0.1 * np.linalg.norm(delta[:3])
+    assert rot < 0.1 * np.linalg.norm(delta[3:])
+    assert int(result.nonfinite) == 0
+    start = pose_error(w2c_init, w2c_true)
+    assert np.allclose(start, (np.linalg.norm(delta[:3]), np.linalg.norm(delta[3:])), rtol=1e-3)
+
+
+# ------------------------------------------------------------------------------------------ non-finite handling
+
+
+def nan_pixel(color):
+    return color.at[12, 20, 1].set(jnp.nan)
+
+
+@pytest.mark.parametrize("optimizer, iters, counted", [("adam", 60, 60), ("lm", 10, 1)])
+def test_a_frame_with_a_nan_pixel_keeps_the_initial_pose_and_counts_nonfinite(rendered_scene, optimizer, iters,
+                                                                              counted):
+    """A NaN colour makes every loss (Adam) or the solve (LM) non-finite: no step is taken, the pose handed in is
+    returned unchanged, and the skipped iterations (Adam) or the unusable solve (LM) are counted."""
+    gaussians, color, depth, w2c_true = rendered_scene
+    w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
+    config = tracking_config(optimizer, iters)
+    result = track_jit(gaussians, nan_pixel(color), depth, w2c_init, tiny_sequence().intrinsics, config, False, 0.0)
+    np.testing.assert_array_equal(np.asarray(result.w2c), np.asarray(w2c_init))
+    assert int(result.nonfinite) == counted
+
+
+def test_adam_skips_non_finite_iterations_and_keeps_the_best_finite_pose():
+    """Loss |delta - target|^2 that turns NaN once rho_x exceeds 0.011: Adam walks towards the target (about
+    lr_trans per step) until a step lands past 0.011; from there no step is taken (the pose stays put) and every
+    later iteration is non-finite. The result is the lowest-loss finite pose (pre_step: the pose whose loss was
+    measured), and the count is exact."""
+    config = map_config()
+    config = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, iters=20, lr_trans=2e-3))
+    target = jnp.asarray([1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+
+    def loss_fn(delta):
+        return jnp.where(delta[0] > 0.011, jnp.nan, jnp.sum((delta - target) ** 2))
+
+    w2c_init = jnp.asarray(relative_gt_w2c()[TRUE_FRAME], jnp.float32)
+    result = jax.jit(lambda w: _track_adam(loss_fn, w, config))(w2c_init)
+    best = np.asarray(se3_log(result.w2c @ jnp.linalg.inv(w2c_init)))
+    # Adam's first steps have size lr: rho_x = 0.002 k after k steps, so the losses at k = 0..5 are finite and the
+    # loss after the 6th step (rho_x = 0.012) is not: 6 finite iterations, 14 skipped, best at k = 5.
+    np.testing.assert_allclose(best, [0.01, 0, 0, 0, 0, 0], atol=2e-5)
+    assert int(result.nonfinite) == 20 - 6
+    np.testing.assert_allclose(float(result.loss), float(loss_fn(jnp.asarray(best, jnp.float32))), rtol=1e-4)
+
+
+# ------------------------------------------------------------------------ CB-KNN keyframe tracking (paper mode)
+
+
+def test_paper_mode_renders_keyframes_smoothed_and_everything_else_canonically(rendered_scene):
+    gaussians, _, _, w2c_true = rendered_scene
+    intrinsics = tiny_sequence().intrinsics
+    paper, off = with_cbknn_mode(map_config(), "paper"), map_config()
+    canonical = render(gaussians, w2c_true, intrinsics, off.raster)
+    smoothed = render_view(gaussians, w2c_true, intrinsics, paper, True, 0.3)
+    unsmoothed = render_view(gaussians, w2c_true, intrinsics, paper, False, 0.3)
+    ignored = render_view(gaussians, w2c_true, intrinsics, off, True, 0.3)  # off mode never smooths
+    for view in (unsmoothed, ignored):
+        np.testing.assert_array_equal(np.asarray(view.color), np.asarray(canonical.color))
+        np.testing.assert_array_equal(np.asarray(view.depth), np.asarray(canonical.depth))
+    assert float(jnp.max(jnp.abs(smoothed.color - canonical.color))) > 1e-3
+    assert float(jnp.max(jnp.abs(smoothed.depth - canonical.depth))) > 1e-4
+
+
+@pytest.fixture(scope="module")
+def one_iteration_tracking(rendered_scene):
+    """Tracking with a single Adam iteration and SplaTAM's ``post_step`` candidate: the returned loss is the loss
+    at the initial pose, the returned pose is one gradient step from it."""
+    gaussians, color, depth, w2c_true = rendered_scene
+    w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
+
+    def run(mode, smooth, **cbknn):
+        config = apply_overrides(tracking_config("adam", 1, mode), {"tracking.best_pose": "post_step"})
+        config = dataclasses.replace(config, cbknn=dataclasses.replace(config.cbknn, **cbknn))
+        return track_jit(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, config, smooth, 0.3)
+
+    return run, w2c_init
+
+
+def test_paper_mode_tracks_non_keyframes_exactly_as_off_mode(one_iteration_tracking):
+    run, w2c_init = one_iteration_tracking
+    off, paper = run("off", False), run("paper", False)
+    assert not np.array_equal(np.asarray(off.w2c), np.asarray(w2c_init))  # a step was taken
+    np.testing.assert_array_equal(np.asarray(paper.w2c), np.asarray(off.w2c))
+    assert float(paper.loss) == float(off.loss)
+    keyframe = run("paper", True)
+    assert not np.array_equal(np.asarray(keyframe.w2c), np.asarray(off.w2c))
+    assert float(keyframe.loss) != float(off.loss)
+
+
+def test_paper_mode_keyframe_tracking_uses_the_smoothed_render_and_the_keyframe_colour_weight(
+    rendered_scene, one_iteration_tracking
+):
+    gaussians, color, depth, _ = rendered_scene
+    run, w2c_init = one_iteration_tracking
+    config = with_cbknn_mode(map_config(), "paper")
+    tc = config.tracking
+    smoothed = render_view(gaussians, w2c_init, tiny_sequence().intrinsics, config, True, 0.3)
+
+    def expected(lambda_color):
+        return float(tracking_loss(smoothed, color, depth, lambda_color, tc.lambda_depth, tc.sil_threshold,
+                                   tc.normalized_depth))
+
+    assert config.cbknn.lambda_color_keyframe == 0.6 and tc.lambda_color == 0.5
+    np.testing.assert_allclose(float(run("paper", True).loss), expected(0.6), rtol=1e-5)
+    np.testing.assert_allclose(float(run("paper", True, lambda_color_keyframe=0.2).loss), expected(0.2), rtol=1e-5)
+    assert abs(expected(0.6) - expected(0.5)) > 1e-3 * expected(0.5)  # the weight is visible in the loss
