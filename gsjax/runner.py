@@ -158,8 +158,6 @@ def run_slam(
         raise ValueError(f"sequence {sequence.name!r} has no frames")
     record = dict(describe or {}, frames=total, width=width, height=height, chunk=options.chunk, seed=options.seed,
                   config=config_to_dict(config))
-    _write_json(out / "config.json", record)
-
     checkpoints = Checkpoints(out / "checkpoints")
     timings = dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0)
     capacity = options.capacity or 2 * height * width
@@ -167,19 +165,26 @@ def run_slam(
     state = initial_state(capacity, height, width, kf_capacity, total, options.seed)
     outputs: dict[str, list] = {}
     done = 0
+    first_chunk_s = None
     if options.resume and checkpoints.latest() is not None:
         step = checkpoints.latest()
         meta = checkpoints.read_meta(step)
-        _check_resumable(meta, record, out)
+        try:
+            _check_resumable(meta, record, out)
+        except ValueError:
+            checkpoints.close()
+            raise
         like = initial_state(meta["capacity"], height, width, kf_capacity, total, options.seed)
         state, meta = checkpoints.restore(step, like)
+        # Plain device arrays, as a fresh start has (restored ones carry a placement that would force a recompile).
+        state = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), state)
         outputs, done, capacity = meta["outputs"], meta["frames_done"], meta["capacity"]
+        timings, first_chunk_s = meta["timings"], meta["first_chunk_s"]  # timings cover the whole run
         log.info("resumed from checkpoint at frame %d (capacity %d)", done, capacity)
+    _write_json(out / "config.json", record)
 
     _, gt_c2w, gt_valid = sequence.gt_trajectory()
     progress = _Progress(total, done, options.progress)
-    start = time.perf_counter()
-    first_chunk_s = None
     try:
         while done < total:
             count = min(options.chunk, total - done)
@@ -209,12 +214,13 @@ def run_slam(
             done += count
             t0 = time.perf_counter()
             checkpoints.save(done, state, dict(frames_done=done, capacity=capacity, outputs=outputs,
-                                               record=_resume_key(record)))
+                                               record=_resume_key(record), timings=timings,
+                                               first_chunk_s=first_chunk_s))
             timings["checkpoint_s"] += time.perf_counter() - t0
             w2c = np.asarray(outputs["w2c"], np.float64)
             ate = _ate_so_far(w2c, gt_c2w, gt_valid)
             fields = dict(loss=f"{outputs['tracking_loss'][-1]:.1f}", gaussians=outputs["num_gaussians"][-1],
-                          fps=f"{done / max(time.perf_counter() - start, 1e-9):.2f}")
+                          fps=f"{done / max(timings['slam_s'], 1e-9):.2f}")
             if ate is not None:
                 fields["ate_cm"] = f"{100 * ate:.2f}"
             progress.update(count, **fields)
@@ -304,6 +310,7 @@ def _finish(sequence, config, options, state: SlamState, outputs: dict, timings:
         capacity=int(state.gaussians.capacity),
         keyframes=int(state.keyframes.count),
         nonfinite_tracking_iterations=int(state.nonfinite_tracking),
+        nonfinite_mapping_iterations=int(state.nonfinite_mapping),
         frames_with_truncated_render=int(np.sum(outputs["truncated"])),
         max_truncation_residual=float(np.max(outputs["residual"])),
         config=record["config"],

@@ -22,7 +22,7 @@ def densify_mask(view: View, depth_gt: jax.Array, config: DensifyConfig) -> jax.
     """
     error = jnp.where(depth_gt > 0, jnp.abs(depth_gt - view.depth), 0.0)
     behind = (view.depth > depth_gt) & (error > config.depth_error_factor * jnp.median(error))
-    return ((view.silhouette < config.sil_threshold) | behind) & (depth_gt > 0)
+    return ((view.silhouette < config.sil_threshold) | behind) & (depth_gt > 0) & jnp.isfinite(depth_gt)
 
 
 class Insertion(NamedTuple):
@@ -77,7 +77,7 @@ def densify(
 ) -> Insertion:
     """Add one Gaussian per pixel of :func:`densify_mask` (SplaTAM's initialisation, back-projected with the
     estimated pose ``w2c``)."""
-    mask = densify_mask(view, depth, config)
+    mask = densify_mask(view, depth, config) & jnp.all(jnp.isfinite(color), axis=-1)  # no non-finite Gaussian
     new = gaussians_from_rgbd(color, depth, intrinsics, se3_inverse(w2c), mask, opacity=config.init_opacity)
     return insert(gaussians, new)
 

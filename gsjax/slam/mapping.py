@@ -50,10 +50,12 @@ def window_views(window: Window, keyframes: KeyframeBuffer, color, depth, w2c, g
 
 
 class MapResult(NamedTuple):
-    """The optimised map and the loss of the last iteration."""
+    """The optimised map, the loss of the last iteration, and the iterations skipped because the loss or a
+    gradient was not finite (they take no step, so nothing non-finite reaches the map)."""
 
     gaussians: Gaussians
     loss: jax.Array
+    nonfinite: jax.Array
 
 
 _PARAMS = ("means", "rgb", "logit_opacities", "log_scales")
@@ -79,25 +81,29 @@ def map_window(
                             cfg.lambda_depth, cfg.ssim_weight)
 
     def iteration(carry, inputs):
-        params, active, opt_state = carry
+        params, active, opt_state, nonfinite = carry
         it, view_index = inputs
         loss, grads = jax.value_and_grad(loss_fn)(params, active, view_index)
+        finite = jnp.isfinite(loss) & jnp.all(
+            jnp.stack([jnp.all(jnp.isfinite(jnp.where(active.reshape(active.shape + (1,) * (g.ndim - 1)), g, 0.0)))
+                       for g in grads.values()])
+        )
         at_prune = jnp.isin(it, jnp.asarray(cfg.prune_iters, jnp.int32)) if cfg.prune_iters else jnp.bool_(False)
         pruned = prune(Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"],
                                  active), cfg, scene_radius).active
         active = jnp.where(at_prune, pruned, active)
         updates, new_opt_state = adam.update(grads, opt_state)
-        take_step = jnp.logical_not(at_prune) if cfg.skip_step_at_prune else jnp.bool_(True)
+        take_step = finite & (jnp.logical_not(at_prune) if cfg.skip_step_at_prune else jnp.bool_(True))
         params = {
             name: jnp.where(take_step, params[name] - step_sizes[name] * updates[name], params[name])
             for name in _PARAMS
         }
         opt_state = jax.tree_util.tree_map(lambda n, o: jnp.where(take_step, n, o), new_opt_state, opt_state)
-        return (params, active, opt_state), loss
+        return (params, active, opt_state, nonfinite + (~finite).astype(jnp.int32)), loss
 
-    init = (params, gaussians.active, adam.init(params))
-    (params, active, _), losses = jax.lax.scan(
+    init = (params, gaussians.active, adam.init(params), jnp.int32(0))
+    (params, active, _, nonfinite), losses = jax.lax.scan(
         iteration, init, (jnp.arange(cfg.iters, dtype=jnp.int32), picks)
     )
     out = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
-    return MapResult(out, losses[-1])
+    return MapResult(out, losses[-1], nonfinite)

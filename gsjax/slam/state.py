@@ -77,6 +77,7 @@ class SlamState:
       num_frames: [] int32 length of the sequence (decides the second-to-last keyframe).
       scene_radius: [] float32 (m), set at frame 0 from its depth.
       nonfinite_tracking: [] int32 tracking iterations whose loss or gradient was not finite (skipped).
+      nonfinite_mapping: [] int32 mapping iterations whose loss or gradient was not finite (skipped).
       dropped_gaussians: [] int32 new Gaussians that found no free slot (the shell grows capacity to avoid it).
     """
 
@@ -89,6 +90,7 @@ class SlamState:
     num_frames: jax.Array
     scene_radius: jax.Array
     nonfinite_tracking: jax.Array
+    nonfinite_mapping: jax.Array
     dropped_gaussians: jax.Array
 
 
@@ -107,6 +109,7 @@ def initial_state(
         num_frames=jnp.int32(num_frames),
         scene_radius=jnp.float32(1.0),
         nonfinite_tracking=jnp.int32(0),
+        nonfinite_mapping=jnp.int32(0),
         dropped_gaussians=jnp.int32(0),
     )
 

@@ -101,6 +101,7 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
         frame=t + 1,
         scene_radius=scene_radius,
         nonfinite_tracking=state.nonfinite_tracking + nonfinite,
+        nonfinite_mapping=state.nonfinite_mapping + mapped.nonfinite,
         dropped_gaussians=state.dropped_gaussians + inserted.dropped,
     )
     outputs = StepOutputs(
