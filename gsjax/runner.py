@@ -16,7 +16,6 @@ map (canonical rendering) for PSNR / MS-SSIM / depth L1, and writes ``trajectory
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
 import time
@@ -364,6 +363,3 @@ def summary_lines(metrics: dict, out: Path) -> list[str]:
                  "config.json checkpoints/")
     return lines
 
-
-def dump_json(obj) -> str:
-    return json.dumps(obj, indent=2)

@@ -248,7 +248,9 @@ class SlamConfig:
             )
 
 
-def _paper_cbknn(k0: float) -> CBKNNConfig:
+def _cbknn_values(k0: float) -> CBKNNConfig:
+    """The paper's CB-KNN values for a dataset (alpha 0.2 px, beta 0.3, its K0); the mode stays ``off`` until
+    chosen (``gsjax run --cbknn``, :func:`with_cbknn_mode`)."""
     return CBKNNConfig(mode="off", params=CBKNN(alpha=0.2, k0=k0, beta=0.3))
 
 
@@ -259,21 +261,21 @@ def preset(name: str) -> SlamConfig:
         return SlamConfig(
             tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=8e-4),
             mapping=MappingConfig(iters=60, window_size=24),
-            cbknn=_paper_cbknn(5.0),
+            cbknn=_cbknn_values(5.0),
             scene_radius_depth_ratio=3.0,
         )
     if name == "tum":
         return SlamConfig(
             tracking=TrackingConfig(iters=200, lr_trans=2e-3, lr_rot=4e-3),
             mapping=MappingConfig(iters=30, window_size=20),
-            cbknn=_paper_cbknn(8.0),
+            cbknn=_cbknn_values(8.0),
             scene_radius_depth_ratio=2.0,
         )
     if name == "scannet":
         return SlamConfig(
             tracking=TrackingConfig(iters=100, lr_trans=5e-4, lr_rot=1e-3),
             mapping=MappingConfig(iters=30, window_size=10),
-            cbknn=_paper_cbknn(8.0),
+            cbknn=_cbknn_values(8.0),
             scene_radius_depth_ratio=3.0,
         )
     if name == "cpu":
@@ -284,7 +286,7 @@ def preset(name: str) -> SlamConfig:
             tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=2e-3, normalized_depth=True),
             mapping=MappingConfig(iters=30, window_size=10, lr_means=1e-3, overlap_samples=800,
                                   overlap_margin=2.5),
-            cbknn=_paper_cbknn(8.0),
+            cbknn=_cbknn_values(8.0),
             scene_radius_depth_ratio=2.0,
         )
     raise ValueError(f"unknown preset {name!r} (replica, tum, scannet, cpu)")
