@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import camera_center, rotation_angle
+from gsjax.checks import is_checkable
 from gsjax.raster.composite import Slots, slot_alpha
 from gsjax.raster.project import Projected
 
@@ -103,9 +104,7 @@ class CBKNN:
                   ("tau_t", 0.0, True), ("tau_r", 0.0, True))
         for name, low, strict in checks:
             value = getattr(self, name)
-            if isinstance(value, jax.core.Tracer) or not isinstance(
-                value, (int, float, np.ndarray, np.generic, jax.Array)
-            ):
+            if not is_checkable(value):
                 continue  # traced, or a placeholder in a pytree (e.g. vmap's in_axes): not checkable
             v = np.asarray(value, np.float64)
             ok = np.isfinite(v).all() and (np.all(v > low) if strict else np.all(v >= low))

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import Intrinsics, rigidity_error
+from gsjax.checks import is_checkable
 from gsjax.gaussians import Gaussians, check_gaussians
 from gsjax.raster import cbknn as cb
 from gsjax.raster.binning import TileGrid, bin_gaussians
@@ -62,8 +63,7 @@ class RasterSettings:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0):
                 raise ValueError(f"RasterSettings.{name} must be a positive number, got {value!r}")
-        near_checkable = isinstance(self.near, (int, float, np.ndarray, np.generic, jax.Array))
-        if near_checkable and _is_concrete(self.near) and not (
+        if is_checkable(self.near) and not (
             np.isfinite(np.asarray(self.near)).all() and np.all(np.asarray(self.near) > 0)
         ):
             raise ValueError(f"RasterSettings.near must be a positive finite number (m), got {self.near!r}")

@@ -15,6 +15,7 @@ import typing
 import jax
 import numpy as np
 
+from gsjax.checks import is_checkable
 from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
 
@@ -29,20 +30,13 @@ def static(default):
     return dataclasses.field(default=default, metadata=dict(static=True))
 
 
-def _is_checkable(value) -> bool:
-    """A concrete number or array (not a tracer, nor a placeholder such as None in an ``in_axes`` tree)."""
-    return isinstance(value, (int, float, np.ndarray, np.generic, jax.Array)) and not isinstance(
-        value, jax.core.Tracer
-    )
-
-
 def _check_positive_int(owner: str, name: str, value, minimum: int = 1) -> None:
     if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < minimum:
         raise ValueError(f"{owner}.{name} must be an int >= {minimum}, got {value!r}")
 
 
 def _check_number(owner: str, name: str, value, low: float, high: float = math.inf, strict_low=False) -> None:
-    if not _is_checkable(value):
+    if not is_checkable(value):
         return  # traced, or a placeholder JAX puts in a pytree (e.g. vmap's in_axes): checked when built
     v = np.asarray(value, np.float64)
     ok = np.isfinite(v).all() and np.all(v > low if strict_low else v >= low) and np.all(v <= high)
@@ -164,7 +158,7 @@ class DensifyConfig:
         _check_number("densify", "sil_threshold", self.sil_threshold, 0.0, 1.0)
         _check_number("densify", "depth_error_factor", self.depth_error_factor, 0.0)
         _check_number("densify", "init_opacity", self.init_opacity, 0.0, 1.0, strict_low=True)
-        if _is_checkable(self.init_opacity) and float(np.max(self.init_opacity)) >= 1.0:
+        if is_checkable(self.init_opacity) and float(np.max(self.init_opacity)) >= 1.0:
             raise ValueError(f"densify.init_opacity must be < 1, got {self.init_opacity!r}")
 
 
