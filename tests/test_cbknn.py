@@ -742,8 +742,8 @@ def test_vmap_over_cbknn_parameters_compiles_once_and_equals_each_unbatched_rend
             single = render_cbknn(gaussians, w2c, intr, params)
             for field in ("color", "depth", "silhouette", "depth_sq"):
                 np.testing.assert_allclose(
-                    np.asarray(getattr(out, field)[b]), np.asarray(getattr(single, field)), atol=1e-6,
-                    err_msg=f"{field} slice {b} of {alpha, k0, beta}",
+                    np.asarray(getattr(out, field)[b]), np.asarray(getattr(single, field)), atol=1e-6, rtol=1e-5,
+                    err_msg=f"{field} slice {b} of {alpha, k0, beta}",  # float32 ulps: fusion differs under vmap
                 )
             np.testing.assert_array_equal(np.asarray(out.stats.cbknn.k_map[b]), np.asarray(single.stats.cbknn.k_map))
     assert not np.allclose(np.asarray(out.color[0]), np.asarray(out.color[1]), atol=1e-3)

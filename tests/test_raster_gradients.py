@@ -28,9 +28,9 @@ def weighted_sum(images, weights) -> float:
     return sum(np.sum(np.asarray(getattr(images, k), np.float64) * w) for k, w in weights.items())
 
 
-def _loss(means, log_scales, logit_opacities, rgb, delta, active, w2c0, intr, weights):
+def _loss(means, log_scales, logit_opacities, rgb, delta, active, w2c0, intr, weights, render_settings):
     gaussians = Gaussians(means, log_scales, logit_opacities, rgb, active)
-    out = raster().render(gaussians, se3_exp(delta) @ w2c0, intr, settings())
+    out = raster().render(gaussians, se3_exp(delta) @ w2c0, intr, render_settings)
     return sum(jnp.sum(getattr(out, k) * w) for k, w in weights.items())
 
 
@@ -38,8 +38,8 @@ _loss_and_grad = jax.jit(jax.value_and_grad(_loss, argnums=(0, 1, 2, 3, 4)))
 
 
 @jax.jit
-def _loss_jvp(primals, tangents, active, w2c0, intr, weights):
-    return jax.jvp(lambda *p: _loss(*p, active, w2c0, intr, weights), primals, tangents)
+def _loss_jvp(primals, tangents, active, w2c0, intr, weights, render_settings):
+    return jax.jvp(lambda *p: _loss(*p, active, w2c0, intr, weights, render_settings), primals, tangents)
 
 
 def float64_copy(gaussians: Gaussians, **updates) -> Gaussians:
@@ -60,12 +60,13 @@ def assert_same_discrete_state(a, b, label):
 
 @pytest.mark.parametrize("name", sorted(scenes.GRADIENT_SCENES))
 def test_gradients_match_finite_differences_of_the_reference(name):
+    render_settings = settings()
     gaussians, w2c, intr = scenes.GRADIENT_SCENES[name](GRAD_SEED)
     weights = loss_weights(intr.height, intr.width)
     weights32 = {k: jnp.asarray(v, jnp.float32) for k, v in weights.items()}
     active = np.asarray(gaussians.active)
     primals = tuple(getattr(gaussians, f) for f in FIELDS) + (jnp.zeros(6, jnp.float32),)
-    value, grads = _loss_and_grad(*primals, gaussians.active, w2c, intr, weights32)
+    value, grads = _loss_and_grad(*primals, gaussians.active, w2c, intr, weights32, render_settings)
 
     base = float64_copy(gaussians)
     w2c64 = np.asarray(w2c, np.float64)
@@ -98,7 +99,7 @@ def test_gradients_match_finite_differences_of_the_reference(name):
         tangents = tuple(
             jnp.asarray(direction if i == index else np.zeros(np.shape(p)), jnp.float32) for i, p in enumerate(primals)
         )
-        _, by_jvp = _loss_jvp(primals, tangents, gaussians.active, w2c, intr, weights32)
+        _, by_jvp = _loss_jvp(primals, tangents, gaussians.active, w2c, intr, weights32, render_settings)
         by_jvp = float(by_jvp)
         err_grad = abs(by_grad - finite_difference) / abs(finite_difference)
         err_jvp = abs(by_jvp - finite_difference) / abs(finite_difference)
@@ -137,7 +138,7 @@ def test_alpha_clamp_passes_the_unclamped_gradient_straight_through():
     def one_pixel_loss(output, row, col):
         weights = {k: jnp.zeros(v.shape, jnp.float32) for k, v in loss_weights(intr.height, intr.width).items()}
         weights[output] = weights[output].at[row, col].set(1.0)
-        return _loss_and_grad(*primals, gaussians.active, w2c, intr, weights)
+        return _loss_and_grad(*primals, gaussians.active, w2c, intr, weights, settings())
 
     cases = (((10, 14), 1.0, "silhouette"), ((10, 14), 1.0, "depth"), ((10, 16), g_side, "silhouette"))
     for (row, col), g, out_weight in cases:

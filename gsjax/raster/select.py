@@ -16,7 +16,6 @@ of an incomplete tile list (capacity overflow) without stopping, is flagged, wit
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import jax
@@ -26,7 +25,6 @@ from gsjax.raster.binning import TileGrid, TileLists
 from gsjax.raster.project import ALPHA_MIN, Projected, gaussian_alpha
 
 T_MIN = 1e-4  # the walk stops before transmittance would fall below this
-_LOG_T_MIN = math.log(T_MIN)
 _WORD = 32
 
 
@@ -34,7 +32,7 @@ class Selection(NamedTuple):
     """First-K contributors of every pixel, P = num_tiles * tile_size^2 pixels in tile-major order.
 
     Attributes:
-      ids: [P, K] int32 Gaussian indices in depth order; -1 marks an empty slot.
+      ids: [K, P] int32 Gaussian indices in depth order, slot-major; -1 marks an empty slot.
       num_kept: [P] int32 contributors before the stop rule (counted through the whole tile list, can exceed K).
       out_of_k: [P] bool, more than K contributors: the walk is cut after the K-th (the transmittance left there
         is the compositing's final transmittance).
@@ -77,7 +75,9 @@ def first_set_bits(words: jax.Array, k: int) -> jax.Array:
 def _walk(features, ids, count, pixels, incomplete, k):
     """Tiles [b]: features [b, M, 6] = (u, v, a, b, c, opacity), ids [b, M], count [b] list lengths,
     pixels [b, T^2, 2], incomplete [b]. A while loop over list entries (forward only, no gradient) that stops at
-    the longest list, or earlier once every pixel has terminated.
+    the longest list, or earlier once every pixel has terminated. Returns the selected ids [k, b, T^2]
+    (slot-major, as the composite reads them) and, per pixel [b, T^2], num_kept, out_of_k, cut_by_list and the
+    transmittance at the end of the walk.
 
     Per-pixel state is laid out [b, T^2] (tile features broadcast along the minor axis): on XLA:CPU this is about
     5x faster than [T^2, b] for 8x8 tiles, and 4x4 tiles ([b, 16]) are as slow per pixel as the transposed layout.
@@ -88,34 +88,35 @@ def _walk(features, ids, count, pixels, incomplete, k):
     entries = jnp.moveaxis(features, 1, 0)  # [M, b, 6]: one contiguous row of tile features per step
 
     def cond(state):
-        m, log_t, _ = state
-        return (m < longest) & jnp.any(log_t >= _LOG_T_MIN)
+        m, transmittance, _ = state
+        return (m < longest) & jnp.any(transmittance >= T_MIN)
 
     def body(state):
-        m, log_t, keep_bits = state
+        m, transmittance, keep_bits = state
         f = jax.lax.dynamic_index_in_dim(entries, m, axis=0, keepdims=False)  # [b, 6]
         dx = pixels[..., 0] - f[:, None, 0]
         dy = pixels[..., 1] - f[:, None, 1]
         alpha = gaussian_alpha(dx, dy, f[:, None, 2], f[:, None, 3], f[:, None, 4], f[:, None, 5])
         contributes = alpha >= ALPHA_MIN  # empty entries have opacity 0
-        log_t = log_t + jnp.where(contributes, jnp.log1p(-alpha), 0.0)
-        keep = contributes & (log_t >= _LOG_T_MIN)
-        return m + 1, log_t, jax.lax.dynamic_update_index_in_dim(keep_bits, keep, m, axis=0)
+        # SplaTAM's test: the running product T (1 - alpha) in float32 (it only decreases; underflow is harmless).
+        transmittance = jnp.where(contributes, transmittance * (1.0 - alpha), transmittance)
+        keep = contributes & (transmittance >= T_MIN)
+        return m + 1, transmittance, jax.lax.dynamic_update_index_in_dim(keep_bits, keep, m, axis=0)
 
-    init = (jnp.int32(0), jnp.zeros(shape, jnp.float32), jnp.zeros((num_entries,) + shape, bool))
-    _, log_t, keep = jax.lax.while_loop(cond, body, init)
-    # log_t includes the contributor that triggered the stop (and any later ones), so a pixel terminated exactly
-    # when its final log transmittance is below the threshold.
-    terminated = log_t < _LOG_T_MIN
+    init = (jnp.int32(0), jnp.ones(shape, jnp.float32), jnp.zeros((num_entries,) + shape, bool))
+    _, transmittance, keep = jax.lax.while_loop(cond, body, init)
+    # transmittance includes the contributor that triggered the stop (and any later ones), so a pixel terminated
+    # exactly when its final transmittance is below the threshold.
+    terminated = transmittance < T_MIN
 
     words = pack_bits(keep.reshape(num_entries, -1))  # [M / 32, b * T^2]
     num_kept = jnp.sum(jax.lax.population_count(words), axis=0).astype(jnp.int32).reshape(shape)
-    local = first_set_bits(words, k)  # [k, b * T^2]
-    local = jnp.moveaxis(local.reshape((k,) + shape), 0, -1)  # [b, T^2, k]
-    selected = jnp.where(local >= 0, jnp.take_along_axis(ids[:, None, :], jnp.maximum(local, 0), axis=-1), -1)
+    local = first_set_bits(words, k).reshape((k,) + shape)  # [k, b, T^2]
+    flat_index = jnp.arange(shape[0], dtype=jnp.int32)[None, :, None] * num_entries + jnp.maximum(local, 0)
+    selected = jnp.where(local >= 0, ids.reshape(-1)[flat_index], -1)  # [k, b, T^2] slot-major
     out_of_k = num_kept > k
     cut_by_list = incomplete[:, None] & ~terminated & ~out_of_k
-    return selected, num_kept, out_of_k, cut_by_list, jnp.exp(log_t)
+    return selected, num_kept, out_of_k, cut_by_list, transmittance
 
 
 def select_contributors(
@@ -132,14 +133,15 @@ def select_contributors(
     args = (features, ids, tiles.count, grid.pixel_coords(), tiles.incomplete())
     batch = min(tiles_per_batch, grid.num_tiles)
     if batch == grid.num_tiles:
-        outputs = _walk(*args, k=k)
+        ids, *per_pixel = _walk(*args, k=k)
     else:
         # Bound memory on large images: batches of tiles, padded to a whole number of batches.
         num_batches = -(-grid.num_tiles // batch)
         fill = num_batches * batch - grid.num_tiles
         padded = jax.tree_util.tree_map(lambda x: jnp.pad(x, [(0, fill)] + [(0, 0)] * (x.ndim - 1)), args)
         batched = jax.tree_util.tree_map(lambda x: x.reshape((num_batches, batch) + x.shape[1:]), padded)
-        outputs = jax.lax.map(lambda a: _walk(*a, k=k), batched)
-        outputs = jax.tree_util.tree_map(lambda x: x.reshape((-1,) + x.shape[2:])[: grid.num_tiles], outputs)
-    flat = lambda x: x.reshape((grid.num_tiles * grid.pixels_per_tile,) + x.shape[2:])  # noqa: E731
-    return Selection(*(flat(x) for x in outputs))
+        ids, *per_pixel = jax.lax.map(lambda a: _walk(*a, k=k), batched)
+        ids = jnp.moveaxis(ids, 0, 1).reshape((k, -1) + ids.shape[3:])[:, : grid.num_tiles]
+        per_pixel = [x.reshape((-1,) + x.shape[2:])[: grid.num_tiles] for x in per_pixel]
+    num_pixels = grid.num_tiles * grid.pixels_per_tile
+    return Selection(ids.reshape(k, num_pixels), *(x.reshape(num_pixels) for x in per_pixel))
