@@ -13,6 +13,7 @@ The readers and their formats: :mod:`gsjax.data.tum`, :mod:`gsjax.data.replica`,
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from gsjax.camera import Intrinsics
@@ -37,6 +38,7 @@ def open_sequence(
     downscale: int = 1,
     start: int = 0,
     intrinsics: Intrinsics | None = None,
+    register_color: bool = True,
 ) -> Sequence:
     """Open an RGB-D sequence stored in a dataset's own layout; frames are read only when accessed.
 
@@ -49,6 +51,8 @@ def open_sequence(
         samples, invalid when fewer than half are valid) and the intrinsics by ``Intrinsics.downscaled(f)``.
       start: index of the first frame kept (in the dataset's listing).
       intrinsics: native-resolution intrinsics overriding the dataset's (their size must match the images).
+      register_color: resample colour into the depth camera where the reader knows the two are not registered
+        (7-Scenes; see :mod:`gsjax.data.sevenscenes`); False reads colour as stored.
 
     Returns:
       A :class:`Sequence` whose ``intrinsics`` are the downscaled ones.
@@ -63,6 +67,8 @@ def open_sequence(
     if not path.is_dir():
         raise DatasetError(f"{path}: {dataset} sequence directory is missing")
     files = READERS[dataset](path, intrinsics)
+    if not register_color:
+        files = dataclasses.replace(files, color_camera=None)
     return sequence_from_files(files, path, start=start, stride=stride, max_frames=max_frames, downscale=downscale)
 
 

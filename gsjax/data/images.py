@@ -20,7 +20,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from gsjax.camera import Intrinsics
 from gsjax.data.frame import DatasetError
+from gsjax.data.registration import ColorCamera, register_color
 
 
 def image_size(path: Path) -> tuple[int, int]:
@@ -66,11 +68,15 @@ def load_rgbd(
     downscale: int = 1,
     invalid_raw: tuple[int, ...] = (0,),
     resize_color: bool = False,
+    color_camera: ColorCamera | None = None,
+    intrinsics: Intrinsics | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Read, check and downscale one colour/depth pair -> (colour [h, w, 3], depth [h, w]) at native_shape // f.
 
     ``native_shape`` (H, W) is the size the intrinsics describe; the depth image must have it. The colour image
-    must too, unless ``resize_color`` (ScanNet: colour is resampled to the depth size with INTER_AREA).
+    must too, unless ``resize_color`` (ScanNet: colour is resampled to the depth size with INTER_AREA) or
+    ``color_camera`` is given: then colour is registered to the depth camera (``intrinsics``, native size) with
+    :func:`gsjax.data.registration.register_color` before downscaling.
     """
     color = read_color(color_path)
     depth = read_depth(depth_path, depth_scale, invalid_raw)
@@ -79,6 +85,8 @@ def load_rgbd(
             f"{depth_path}: depth image is {depth.shape[1]}x{depth.shape[0]} (WxH), "
             f"the intrinsics expect {native_shape[1]}x{native_shape[0]}"
         )
+    if color_camera is not None:
+        color = register_color(color, depth, intrinsics, color_camera)
     if color.shape[:2] != depth.shape:
         if not resize_color:
             raise DatasetError(

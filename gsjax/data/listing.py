@@ -19,6 +19,7 @@ from gsjax.camera import Intrinsics, make_intrinsics
 from gsjax.data.frame import DatasetError
 from gsjax.data.images import load_rgbd
 from gsjax.data.poses import read_pose_files
+from gsjax.data.registration import ColorCamera
 from gsjax.data.sequence import Sequence
 
 
@@ -35,6 +36,8 @@ class FrameFiles:
       depth_scale: raw depth units per metre.
       invalid_raw: raw 16-bit depth values that mark invalid pixels besides 0.
       resize_color: resample colour to the depth size (ScanNet), instead of rejecting a size mismatch.
+      color_camera: for recordings whose colour is not registered to depth (7-Scenes), the colour camera; colour
+        is then resampled into the depth camera when read (:mod:`gsjax.data.registration`).
     """
 
     name: str
@@ -47,6 +50,7 @@ class FrameFiles:
     depth_scale: float
     invalid_raw: tuple[int, ...] = (0,)
     resize_color: bool = False
+    color_camera: ColorCamera | None = None
 
 
 def select_indices(count: int, *, start: int = 0, stride: int = 1, max_frames: int | None = None) -> np.ndarray:
@@ -94,6 +98,8 @@ def sequence_from_files(
             downscale=downscale,
             invalid_raw=files.invalid_raw,
             resize_color=files.resize_color,
+            color_camera=files.color_camera,
+            intrinsics=files.intrinsics,
         )
 
     return Sequence(
