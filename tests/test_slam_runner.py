@@ -1,14 +1,17 @@
-"""The runner shell (``run_slam``): capacity growth re-runs chunks and changes nothing, a resumed run equals the
-uninterrupted one bit for bit, and resuming with other options is refused."""
+"""The runner shell (``run_slam``): capacity growth re-runs chunks and changes nothing (beyond float32 rounding),
+a resumed run equals the uninterrupted one bit for bit, and resuming with other options is refused."""
 
 from __future__ import annotations
 
 import json
 import shutil
 
+import numpy as np
 import pytest
 
 from gsjax.io.checkpoint import Checkpoints
+from gsjax.io.ply import read_ply
+from gsjax.io.trajectory import read_tum_trajectory
 from gsjax.runner import RunOptions, run_slam
 from gsjax.slam.config import apply_overrides
 from slam_fixtures import CAPACITY, CHUNK, FRAMES, tiny_config, tiny_sequence
@@ -36,6 +39,26 @@ def assert_same_run(out, metrics, reference_out, reference_metrics):
     assert saved_outputs(out) == saved_outputs(reference_out)
     for key in ("trajectory", "render", "num_gaussians", "capacity", "keyframes", "nonfinite_tracking_iterations"):
         assert metrics[key] == reference_metrics[key], key
+
+
+def assert_close_run(out, metrics, reference_out, reference_metrics):
+    """The same run up to float32 rounding: poses within 1e-5 m / 1e-5, the same Gaussians (count, keyframes,
+    per-frame counts), and per-frame outputs and metrics within 1e-4 relative."""
+    _, c2w = read_tum_trajectory(out / "trajectory.txt")
+    _, c2w_ref = read_tum_trajectory(reference_out / "trajectory.txt")
+    np.testing.assert_allclose(c2w, c2w_ref, atol=1e-5)
+    got, want = read_ply(out / "map.ply"), read_ply(reference_out / "map.ply")
+    assert got.capacity == want.capacity
+    np.testing.assert_allclose(np.asarray(got.means), np.asarray(want.means), atol=1e-4)
+    outputs, reference_outputs = saved_outputs(out), saved_outputs(reference_out)
+    assert outputs.keys() == reference_outputs.keys()
+    for name in outputs:
+        np.testing.assert_allclose(np.asarray(outputs[name], np.float64), np.asarray(reference_outputs[name], np.float64),
+                                   rtol=1e-4, atol=1e-5, err_msg=name)
+    for key in ("num_gaussians", "capacity", "keyframes", "nonfinite_tracking_iterations"):
+        assert metrics[key] == reference_metrics[key], key
+    ate, reference_ate = metrics["trajectory"]["ate_rmse_c2w_m"], reference_metrics["trajectory"]["ate_rmse_c2w_m"]
+    assert ate == pytest.approx(reference_ate, abs=1e-5)
 
 
 @pytest.fixture(scope="module")
@@ -68,8 +91,10 @@ def copy_of(run_dir, tmp_path):
 
 def test_a_tiny_capacity_grows_by_rerunning_chunks_and_changes_nothing(tmp_path, capsys, reference):
     """Capacity 600 < the 1200 Gaussians of frame 0: the first chunk is re-run at 1200, the second (which needs a
-    few more) at 2400. Measured: the trajectory, map and every per-frame output are bit for bit those of a run
-    started at 2400 (the first chunk's program has another capacity, and the result does not depend on it)."""
+    few more) at 2400. The trajectory, map and every per-frame output are those of a run started at 2400, up to
+    float32 rounding: the first chunk runs a program compiled for another capacity, which XLA may fuse (and so
+    round) differently. (A lone render is bit for bit independent of the capacity; inside the whole SLAM step it
+    is not guaranteed.)"""
     out = tmp_path / "small"
     metrics = run_slam(tiny_sequence(), tiny_config(), options(out, capacity=600))
     log = capsys.readouterr().out
@@ -78,7 +103,7 @@ def test_a_tiny_capacity_grows_by_rerunning_chunks_and_changes_nothing(tmp_path,
     assert metrics["capacity"] == CAPACITY
     assert not any(saved_outputs(out)["dropped"])
     assert metrics["stage_timings_s"]["regrow_s"] > 0
-    assert_same_run(out, metrics, *reference)
+    assert_close_run(out, metrics, *reference)
 
 
 def test_resume_after_an_interruption_reproduces_the_uninterrupted_run(tmp_path, interrupted, reference):
