@@ -139,9 +139,10 @@ def _map_window_jit():
     return jax.jit(map_window)
 
 
-def run_map_window(gaussians, seed: int = 0):
-    """``map_window`` over :func:`window_views` with :func:`map_config` (one compiled program for all callers)."""
-    config = map_config()
+def run_map_window(gaussians, seed: int = 0, config: SlamConfig | None = None, first=False):
+    """``map_window`` over :func:`window_views` with :func:`map_config` (one compiled program for all callers that
+    keep the config's static fields)."""
+    config = map_config() if config is None else config
     return _map_window_jit()(jax.random.PRNGKey(seed), gaussians, window_views(), tiny_sequence().intrinsics, config,
-                             scene_radius(config))
+                             scene_radius(config), jnp.asarray(first))
 

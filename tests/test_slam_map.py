@@ -12,6 +12,7 @@ import pytest
 from gsjax.camera import se3_inverse
 from gsjax.gaussians import Gaussians, gaussians_from_rgbd
 from gsjax.slam.densify import densify, insert, prune
+from gsjax.slam.config import apply_overrides
 from gsjax.slam.losses import mapping_loss
 from gsjax.slam.state import grow_capacity
 from gsjax.slam.views import render_view
@@ -102,6 +103,18 @@ def pixels_of(means, w2c, intrinsics):
     v = float(intrinsics.fy) * cam[:, 1] / cam[:, 2] + float(intrinsics.cy)
     rows, cols = np.round(v).astype(int), np.round(u).astype(int)
     return rows, cols, np.hypot(u - cols, v - rows), cam[:, 2]
+
+
+def test_frame_zero_moves_the_means_with_its_own_step_size():
+    """lr_means = 0 freezes the means, except on the frame-0 map (``first``), which uses lr_means_first; the
+    other fields' steps are unchanged by ``first``."""
+    config = apply_overrides(map_config(), {"mapping.lr_means": "0", "mapping.lr_means_first": "1e-3"})
+    start = first_frame_map()
+    later, first = run_map_window(start, config=config, first=False), run_map_window(start, config=config, first=True)
+    np.testing.assert_array_equal(np.asarray(later.gaussians.means), np.asarray(start.means))
+    moved = np.abs(np.asarray(first.gaussians.means) - np.asarray(start.means))[np.asarray(start.active)]
+    assert moved.max() > 1e-3  # up to 30 steps of 1e-3 m
+    assert not np.array_equal(np.asarray(later.gaussians.rgb), np.asarray(start.rgb))
 
 
 def test_densify_fills_a_hole_exactly_where_silhouette_is_low_and_depth_valid(holed_map):

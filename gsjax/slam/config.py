@@ -101,6 +101,10 @@ class MappingConfig:
       iters: iterations per frame (a fresh Adam each frame, eps 1e-15).
       window_size: views per window: overlapping keyframes + the last keyframe + the current frame.
       lr_means, lr_rgb, lr_opacity, lr_scale: Adam step sizes of means (m), colours, logit opacities, log scales.
+      lr_means_first: the means' step size when mapping frame 0 (SplaTAM: the same as ``lr_means``). Fresh
+        Gaussians render a depth biased towards the camera on slanted surfaces (nearer neighbours come first in
+        the blend) by up to a fraction of a pixel footprint; at low resolution that is centimetres, and the first
+        map needs a larger step to remove it before the second frame tracks against it.
       lambda_color, lambda_depth: loss weights; ``ssim_weight`` mixes 1 - SSIM into the colour term.
       prune_opacity: prune Gaussians with opacity below this; ``prune_scale_ratio``: or with scale above this
         fraction of the scene radius.
@@ -113,6 +117,7 @@ class MappingConfig:
     iters: int = static(30)
     window_size: int = static(24)
     lr_means: float = 1e-4
+    lr_means_first: float = 1e-4
     lr_rgb: float = 2.5e-3
     lr_opacity: float = 5e-2
     lr_scale: float = 1e-3
@@ -130,7 +135,7 @@ class MappingConfig:
         _check_positive_int("mapping", "iters", self.iters)
         _check_positive_int("mapping", "window_size", self.window_size, 2)
         _check_positive_int("mapping", "overlap_samples", self.overlap_samples)
-        for name in ("lr_means", "lr_rgb", "lr_opacity", "lr_scale", "lambda_color", "lambda_depth",
+        for name in ("lr_means", "lr_means_first", "lr_rgb", "lr_opacity", "lr_scale", "lambda_color", "lambda_depth",
                      "prune_opacity", "prune_scale_ratio", "overlap_margin"):
             _check_number("mapping", name, getattr(self, name), 0.0)
         _check_number("mapping", "ssim_weight", self.ssim_weight, 0.0, 1.0)
@@ -276,13 +281,16 @@ def preset(name: str) -> SlamConfig:
         )
     if name == "cpu":
         # About 80x60 input (see the runner's downscale). Tracking compares D / S (young maps have S < 1, and
-        # D = sum w z would pull the camera along its axis). The means keep SplaTAM's step (1e-4): a larger one
-        # removes more of the in-pixel depth blending bias on short runs, but lets each frame's map update absorb
-        # that frame's tracking error, which then accumulates (7-Scenes kitchen, 150 frames: 1e-3 -> 2.9 cm ATE,
-        # 3e-4 -> 2.5 cm, 1e-4 -> 2.0 cm; noisy synthetic, 60 frames: 0.42 -> 0.34 cm).
+        # D = sum w z would pull the camera along its axis). The means keep SplaTAM's step (1e-4) after frame 0: a
+        # larger one lets each frame's map update absorb that frame's tracking error, which then accumulates
+        # (7-Scenes kitchen, 150 frames: 1e-3 -> 2.9 cm ATE, 3e-4 -> 2.5 cm, 1e-4 -> 2.0 cm; noisy synthetic,
+        # 60 frames: 0.42 -> 0.34 cm). Frame 0's map takes 1e-3 to remove the blending depth bias of fresh
+        # Gaussians, which at ~8x a full-resolution pixel is centimetres (Replica sample, 80x45: 2.2 cm ATE with
+        # 1e-4 on frame 0 too, no better than a constant pose).
         return SlamConfig(
             tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=2e-3, normalized_depth=True),
-            mapping=MappingConfig(iters=30, window_size=10, overlap_samples=800, overlap_margin=2.5),
+            mapping=MappingConfig(iters=30, window_size=10, lr_means_first=1e-3, overlap_samples=800,
+                                  overlap_margin=2.5),
             cbknn=_cbknn_values(8.0),
             scene_radius_depth_ratio=2.0,
         )

@@ -62,12 +62,14 @@ _PARAMS = ("means", "rgb", "logit_opacities", "log_scales")
 
 
 def map_window(
-    key, gaussians: Gaussians, views: Views, intrinsics: Intrinsics, config: SlamConfig, scene_radius
+    key, gaussians: Gaussians, views: Views, intrinsics: Intrinsics, config: SlamConfig, scene_radius, first=False
 ) -> MapResult:
     """``config.mapping.iters`` iterations, each on one view drawn uniformly from the valid window entries;
-    pruning at ``prune_iters`` (after the gradient, before the step, as SplaTAM)."""
+    pruning at ``prune_iters`` (after the gradient, before the step, as SplaTAM). ``first`` (traced bool): the
+    frame-0 map, whose means take the step ``lr_means_first``."""
     cfg = config.mapping
-    step_sizes = dict(means=cfg.lr_means, rgb=cfg.lr_rgb, logit_opacities=cfg.lr_opacity, log_scales=cfg.lr_scale)
+    lr_means = jnp.where(first, cfg.lr_means_first, cfg.lr_means)
+    step_sizes = dict(means=lr_means, rgb=cfg.lr_rgb, logit_opacities=cfg.lr_opacity, log_scales=cfg.lr_scale)
     adam = optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15)
     params = {name: getattr(gaussians, name) for name in _PARAMS}
     smooth_stage = config.cbknn.smooth_renders and config.cbknn.map_keyframes

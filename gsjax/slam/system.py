@@ -88,7 +88,7 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
         window = select_window(key_window, state.keyframes, frame.depth, w2c, intrinsics, config.mapping,
                                config.cbknn)
         views = window_views(window, state.keyframes, frame.color, frame.depth, w2c, gamma, keyframe)
-        mapped = map_window(key_map, gaussians, views, intrinsics, config, scene_radius)
+        mapped = map_window(key_map, gaussians, views, intrinsics, config, scene_radius, first=t == 0)
 
     keyframes = state.keyframes.push(frame.color, frame.depth, w2c, t, gamma, keyframe & frame.pose_valid)
     new_state = dataclasses.replace(
