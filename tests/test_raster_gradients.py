@@ -167,6 +167,17 @@ def test_jit_gives_the_same_render_as_eager_execution():
     _assert_renders_equal(jitted, eager, "jit vs eager")
 
 
+@pytest.mark.parametrize("tiles_per_batch", [1, 3, 7])  # 20 tiles: 20 x 1, 7 x 3 (+1 padding), 3 x 7 (+1)
+def test_selection_in_batches_of_tiles_gives_the_same_render(tiles_per_batch):
+    gaussians, w2c, intr = scenes.sparse_random(0)
+    render = raster().render
+    whole = render(gaussians, w2c, intr, settings())
+    batched = render(gaussians, w2c, intr, settings(tiles_per_batch=tiles_per_batch))
+    grid = raster().binning.TileGrid.for_image(intr.height, intr.width, settings().tile_size)
+    assert grid.num_tiles > tiles_per_batch
+    _assert_renders_equal(batched, whole, f"{tiles_per_batch} tiles per batch", atol=0.0)
+
+
 def test_vmap_over_poses_equals_rendering_each_pose():
     gaussians, w2c, intr = scenes.sparse_random(0)
     render, s = raster().render, settings()

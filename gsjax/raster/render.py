@@ -39,7 +39,8 @@ class RasterSettings:
         bounded by a few per pixel when the map holds many more Gaussians than are in view (a SLAM map's capacity),
         and never less than every tile's full list when N is small. Pairs beyond L (the farthest) are counted
         in the stats.
-      tiles_per_batch: tiles processed together in the selection pass (bounds its memory).
+      tiles_per_batch: at most this many tiles are processed together in the selection pass (bounds its memory;
+        the tiles are split into equal batches).
       near: near-plane distance (m); Gaussians with camera z <= near are culled.
 
     The defaults render dense SplaTAM-like maps without truncation (measured in ``experiments/raster_defaults.py``);

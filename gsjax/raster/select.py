@@ -131,12 +131,12 @@ def select_contributors(
     ids = jnp.pad(ids, ((0, 0), (0, pad)), constant_values=-1)
     features = jnp.where((ids >= 0)[..., None], table[jnp.maximum(ids, 0)], 0.0)  # [B, M, 6]
     args = (features, ids, tiles.count, grid.pixel_coords(), tiles.incomplete())
-    batch = min(tiles_per_batch, grid.num_tiles)
-    if batch == grid.num_tiles:
+    # Bound memory on large images: at most tiles_per_batch tiles at a time, in equal batches (least padding).
+    num_batches = -(-grid.num_tiles // tiles_per_batch)
+    batch = -(-grid.num_tiles // num_batches)
+    if num_batches == 1:
         ids, *per_pixel = _walk(*args, k=k)
     else:
-        # Bound memory on large images: batches of tiles, padded to a whole number of batches.
-        num_batches = -(-grid.num_tiles // batch)
         fill = num_batches * batch - grid.num_tiles
         padded = jax.tree_util.tree_map(lambda x: jnp.pad(x, [(0, fill)] + [(0, 0)] * (x.ndim - 1)), args)
         batched = jax.tree_util.tree_map(lambda x: x.reshape((num_batches, batch) + x.shape[1:]), padded)
