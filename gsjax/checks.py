@@ -7,8 +7,11 @@ import numpy as np
 
 
 def is_checkable(value) -> bool:
-    """A concrete number or array whose value can be checked now: not a tracer (under jit/vmap/grad), nor a
-    placeholder JAX puts in a pytree (such as ``None`` in a vmap ``in_axes`` tree)."""
-    return isinstance(value, (int, float, np.ndarray, np.generic, jax.Array)) and not isinstance(
-        value, jax.core.Tracer
+    """Whether ``value`` (a number, an array or a pytree of them) can be checked now: every leaf a concrete number
+    or array, none a tracer (under jit/vmap/grad), and at least one leaf (not a placeholder JAX puts in a pytree,
+    such as ``None`` in a vmap ``in_axes`` tree)."""
+    leaves = jax.tree_util.tree_leaves(value)
+    return bool(leaves) and all(
+        isinstance(leaf, (int, float, np.ndarray, np.generic, jax.Array)) and not isinstance(leaf, jax.core.Tracer)
+        for leaf in leaves
     )

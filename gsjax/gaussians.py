@@ -12,6 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsjax.checks import is_checkable
+
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
@@ -78,7 +80,7 @@ class Gaussians:
             raise ValueError(f"rgb must have shape [{n}, 3], got {rgb.shape}")
         scales = jnp.broadcast_to(jnp.asarray(scales, jnp.float32), (n,))
         opacities = jnp.broadcast_to(jnp.asarray(opacities, jnp.float32), (n,))
-        if not isinstance(scales, jax.core.Tracer) and not isinstance(opacities, jax.core.Tracer):
+        if is_checkable((scales, opacities)):
             if not bool(jnp.all(scales > 0)):
                 raise ValueError("scales must be > 0")
             if not bool(jnp.all((opacities > 0) & (opacities < 1))):
@@ -131,7 +133,7 @@ def check_gaussians(gaussians: Gaussians, name: str = "gaussians") -> None:
             raise ValueError(f"{name}.{field} must be floating point, got {getattr(gaussians, field).dtype}")
     if gaussians.active.dtype != jnp.bool_:
         raise ValueError(f"{name}.active must be bool, got {gaussians.active.dtype}")
-    if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(gaussians)):
+    if not is_checkable(gaussians):
         return  # value checks need concrete arrays (skipped under an outer jit)
     active = np.asarray(gaussians.active)
     for field in ("means", "log_scales", "logit_opacities", "rgb"):

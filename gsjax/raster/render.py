@@ -113,10 +113,6 @@ class Render(NamedTuple):
     stats: RenderStats
 
 
-def _is_concrete(x) -> bool:
-    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
-
-
 def check_render_inputs(gaussians, w2c, intrinsics, settings, cbknn=None, motion=0.0) -> None:
     """Validate render's arguments; ValueError naming the argument.
 
@@ -137,7 +133,7 @@ def check_render_inputs(gaussians, w2c, intrinsics, settings, cbknn=None, motion
         raise ValueError(f"w2c must be a [4, 4] world-to-camera matrix, got shape {list(w2c_shape)}")
     if not jnp.issubdtype(jnp.result_type(w2c), jnp.floating):
         raise ValueError(f"w2c must be floating point, got {jnp.result_type(w2c)}")
-    if _is_concrete(w2c):
+    if is_checkable(w2c):
         w2c_np = np.asarray(w2c, np.float64)
         if not np.isfinite(w2c_np).all():
             raise ValueError("w2c has non-finite entries")
@@ -153,13 +149,13 @@ def check_render_inputs(gaussians, w2c, intrinsics, settings, cbknn=None, motion
             )
     if np.ndim(motion) != 0:
         raise ValueError(f"motion must be a scalar in [0, 1], got shape {list(np.shape(motion))}")
-    if _is_concrete(motion) and not (0.0 <= float(np.asarray(motion)) <= 1.0):
+    if is_checkable(motion) and not (0.0 <= float(np.asarray(motion)) <= 1.0):
         raise ValueError(f"motion must lie in [0, 1], got {float(np.asarray(motion))!r}")
     for name in ("fx", "fy", "cx", "cy"):
         value = getattr(intrinsics, name)
         if np.ndim(value) != 0:
             raise ValueError(f"intrinsics.{name} must be a scalar, got shape {list(np.shape(value))}")
-        if _is_concrete(value):
+        if is_checkable(value):
             v = float(np.asarray(value))
             if not math.isfinite(v) or (name in ("fx", "fy") and v <= 0):
                 kind = "a positive finite number" if name in ("fx", "fy") else "finite"
