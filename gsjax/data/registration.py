@@ -13,7 +13,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from gsjax.camera import Intrinsics
+from gsjax.camera import Intrinsics, backproject
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,15 +38,10 @@ def register_color(color: np.ndarray, depth: np.ndarray, intrinsics: Intrinsics,
     ``depth`` [H, W] (m, 0 invalid) and ``intrinsics`` are the depth camera's. Points that land outside the colour
     image take the nearest border colour.
     """
-    height, width = depth.shape
-    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
     valid = depth > 0
     fallback = float(np.median(depth[valid])) if valid.any() else 1.0
-    z = np.where(valid, depth, fallback).astype(np.float64)
-    points = np.stack(
-        [(u - float(intrinsics.cx)) / float(intrinsics.fx) * z, (v - float(intrinsics.cy)) / float(intrinsics.fy) * z, z],
-        axis=-1,
-    )
+    z = np.where(valid, depth, fallback).astype(np.float32)
+    points = np.asarray(backproject(z, intrinsics), np.float64)  # [H, W, 3] in the depth camera
     rotation, translation = camera.depth_to_color[:3, :3], camera.depth_to_color[:3, 3]
     seen = points @ rotation.T + translation
     z_color = np.maximum(seen[..., 2], 1e-6)

@@ -3,8 +3,9 @@
 Everything that depends on Gaussian parameters or the pose is recomputed here with gradients
 (:func:`gsjax.raster.project.splat`, the same function the selection used, once per Gaussian) and gathered into
 the slots. (Projecting per slot from gathered raw parameters avoids the backward scatter when only the pose is
-differentiated, but measured slower on XLA:CPU in this slot-major layout, for pose-only gradients too.) Colour, depth (sum w z), silhouette (sum w) and depth^2 (sum w z^2)
-come from one pass, with blending weights ``w_k = alpha_k prod_{j<k} (1 - alpha_j)``.
+differentiated, but measured slower on XLA:CPU in this slot-major layout, for pose-only gradients too.) Colour,
+depth (sum w z), silhouette (sum w) and depth^2 (sum w z^2) come from one pass, with blending weights
+``w_k = alpha_k prod_{j<k} (1 - alpha_j)``.
 
 Layout: slot-major [K, P] with one array per quantity; on XLA:CPU this vectorises several times better than
 [P, K, features], and the scan over slots runs along the leading axis.

@@ -135,13 +135,13 @@ def select_contributors(
     num_batches = -(-grid.num_tiles // tiles_per_batch)
     batch = -(-grid.num_tiles // num_batches)
     if num_batches == 1:
-        ids, *per_pixel = _walk(*args, k=k)
+        selected, *per_pixel = _walk(*args, k=k)
     else:
         fill = num_batches * batch - grid.num_tiles
         padded = jax.tree_util.tree_map(lambda x: jnp.pad(x, [(0, fill)] + [(0, 0)] * (x.ndim - 1)), args)
         batched = jax.tree_util.tree_map(lambda x: x.reshape((num_batches, batch) + x.shape[1:]), padded)
-        ids, *per_pixel = jax.lax.map(lambda a: _walk(*a, k=k), batched)
-        ids = jnp.moveaxis(ids, 0, 1).reshape((k, -1) + ids.shape[3:])[:, : grid.num_tiles]
+        selected, *per_pixel = jax.lax.map(lambda a: _walk(*a, k=k), batched)
+        selected = jnp.moveaxis(selected, 0, 1).reshape((k, -1) + selected.shape[3:])[:, : grid.num_tiles]
         per_pixel = [x.reshape((-1,) + x.shape[2:])[: grid.num_tiles] for x in per_pixel]
     num_pixels = grid.num_tiles * grid.pixels_per_tile
-    return Selection(ids.reshape(k, num_pixels), *(x.reshape(num_pixels) for x in per_pixel))
+    return Selection(selected.reshape(k, num_pixels), *(x.reshape(num_pixels) for x in per_pixel))
