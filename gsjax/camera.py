@@ -71,6 +71,8 @@ class Intrinsics:
         """
         if not isinstance(factor, int) or factor < 1:
             raise ValueError(f"downscale factor must be a positive int, got {factor!r}")
+        if factor > min(self.height, self.width):
+            raise ValueError(f"downscale factor {factor} leaves no pixel of a {self.width}x{self.height} image")
         f = float(factor)
         return Intrinsics(
             fx=self.fx / f,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +12,7 @@ import pytest
 
 from data_fixtures import tiny_scene, write_replica, write_scannet, write_sevenscenes, write_tum_by_hand
 from gsjax.camera import make_intrinsics
-from gsjax.data import DatasetError, Frame, open_sequence, write_tum
+from gsjax.data import DatasetError, DatasetWarning, Frame, open_sequence, write_tum
 from gsjax.data.tum import FREIBURG_INTRINSICS, associate
 
 WRITERS = {"replica": write_replica, "scannet": write_scannet, "7scenes": write_sevenscenes}
@@ -98,7 +99,8 @@ def test_chunks_stack_frames_for_scan(tmp_path, scene):
 def test_scannet_resizes_colour_to_depth_size_and_flags_inf_poses(tmp_path, scene):
     folder = write_scannet(tmp_path, scene)
     (folder / "pose" / "2.txt").write_text("-inf -inf -inf -inf\n" * 4)
-    seq = open_sequence("scannet", folder)
+    with pytest.warns(DatasetWarning, match=r"pose/2\.txt: pose has non-finite values; left out of the evaluation"):
+        seq = open_sequence("scannet", folder)
     assert seq[0].color.shape == seq[0].depth.shape + (3,)
     np.testing.assert_allclose(np.asarray(seq[0].color), scene[1][0] / 255.0, atol=1e-6)
     _, poses, valid = seq.gt_trajectory()
@@ -190,7 +192,7 @@ def test_tum_colour_frames_without_depth_are_skipped_with_a_warning(tmp_path, sc
     folder = write_tum_by_hand(tmp_path, scene)
     lines = (folder / "depth.txt").read_text().splitlines()
     (folder / "depth.txt").write_text("\n".join(lines[:2] + lines[3:]) + "\n")  # no depth for frame 1
-    with pytest.warns(UserWarning, match=r"depth\.txt: 1 of 4 colour frames have no depth"):
+    with pytest.warns(DatasetWarning, match=r"rgb\.txt: 1 of 4 colour frames have no depth image"):
         seq = open_sequence("tum", folder, intrinsics=scene[0])
     np.testing.assert_allclose(seq.gt_trajectory()[1], scene[3][[0, 2, 3]], atol=1e-6)
 
@@ -231,3 +233,53 @@ def test_open_sequence_rejects_unknown_dataset_and_bad_options(tmp_path, scene):
         open_sequence("7scenes", folder, stride=0)
     with pytest.raises(ValueError, match="downscale factor must be a positive int"):
         open_sequence("7scenes", folder, downscale=1.5)
+
+
+def test_tum_lists_out_of_order_are_sorted_and_repeats_dropped_with_warnings_naming_the_list(tmp_path, scene):
+    folder = write_tum_by_hand(tmp_path, scene)
+    lines = (folder / "rgb.txt").read_text().splitlines()
+    lines[1], lines[3] = lines[3], lines[1]  # frames 2, 1, 0, 3
+    (folder / "rgb.txt").write_text("\n".join(lines + [lines[2]]) + "\n")  # frame 1 listed again on line 6
+    with pytest.warns(DatasetWarning) as caught:
+        seq = open_sequence("tum", folder, intrinsics=scene[0])
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 2
+    assert re.search(r"rgb\.txt:3: timestamps out of order .* sorted", messages[0]), messages
+    assert re.search(r"rgb\.txt:6: timestamp .* listed more than once", messages[1]), messages
+    np.testing.assert_allclose(seq.gt_trajectory()[1], scene[3], atol=1e-6)  # the original order, each once
+    assert len(seq) == 4
+
+
+def test_tum_depth_images_without_a_colour_frame_are_skipped_with_a_warning(tmp_path, scene):
+    folder = write_tum_by_hand(tmp_path, scene)
+    with open(folder / "depth.txt", "a") as handle:
+        handle.write("1305031200.0 depth/extra.png\n")
+    with pytest.warns(DatasetWarning, match=r"depth\.txt: 1 of 5 depth images have no colour frame"):
+        assert len(open_sequence("tum", folder, intrinsics=scene[0])) == 4
+
+
+@pytest.mark.parametrize("dataset", ["tum", "replica", "scannet", "7scenes"])
+def test_intrinsics_as_pinhole_values_and_depth_scale_override_the_dataset(tmp_path, scene, dataset):
+    writer = {"tum": write_tum_by_hand, "replica": write_replica, "scannet": write_scannet,
+              "7scenes": write_sevenscenes}[dataset]
+    folder = writer(tmp_path, scene)
+    reference = open_sequence(dataset, folder, intrinsics=scene[0] if dataset == "tum" else None)
+    seq = open_sequence(dataset, folder, intrinsics=(20.0, 21.0, 15.0, 11.0), depth_scale=2 * reference.depth_scale)
+    k = seq.intrinsics
+    assert (k.width, k.height) == (32, 24)  # the stored depth images' size
+    np.testing.assert_allclose([k.fx, k.fy, k.cx, k.cy], [20.0, 21.0, 15.0, 11.0])
+    np.testing.assert_allclose(np.asarray(seq[1].depth), np.asarray(reference[1].depth) / 2, rtol=1e-6)
+    assert seq.depth_scale == 2 * reference.depth_scale
+    assert seq.frame_files(1)[1].is_file() and seq.frame_files(1)[0].is_file()
+    with pytest.raises(ValueError, match="depth_scale must be a finite number > 0"):
+        open_sequence(dataset, folder, depth_scale=0.0)
+
+
+@pytest.mark.parametrize("dataset, colour", [("replica", "results/frame000001.png"), ("scannet", "color/1.png"),
+                                             ("7scenes", "frame-000001.color.png")])
+def test_a_depth_image_without_its_colour_image_is_an_error_naming_the_colour_file(tmp_path, scene, dataset, colour):
+    writer = {"replica": write_replica, "scannet": write_scannet, "7scenes": write_sevenscenes}[dataset]
+    folder = writer(tmp_path, scene)
+    (folder / colour).unlink()
+    with pytest.raises(DatasetError, match=re.escape(str(folder / colour)) + r": colour image is missing \(its depth"):
+        open_sequence(dataset, folder)

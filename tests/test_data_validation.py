@@ -11,7 +11,7 @@ import pytest
 
 from data_fixtures import tiny_scene, write_replica, write_scannet, write_sevenscenes, write_tum_by_hand
 from gsjax.camera import make_intrinsics
-from gsjax.data import DatasetError, open_sequence
+from gsjax.data import DatasetError, DatasetWarning, open_sequence
 
 
 @pytest.fixture(scope="module")
@@ -140,21 +140,40 @@ def test_sevenscenes_pose_file_with_a_short_row_is_reported(tmp_path, scene):
         open_sequence("7scenes", folder)
 
 
-def test_non_rigid_pose_matrix_is_reported(tmp_path, scene):
+def _warns(path, problem):
+    """pytest.warns for a DatasetWarning whose message contains the path and the problem (a regex)."""
+    return pytest.warns(DatasetWarning, match=re.escape(str(path)) + ".*" + problem)
+
+
+def test_non_rigid_pose_matrix_is_left_out_of_the_evaluation_with_a_warning(tmp_path, scene):
     folder = write_scannet(tmp_path, scene)
     scaled = scene[3][1].copy()
     scaled[:3, :3] *= 1.1
     (folder / "pose" / "1.txt").write_text("\n".join(" ".join(map(str, row)) for row in scaled) + "\n")
-    with _raises(folder / "pose" / "1.txt", "pose is not a rigid transform"):
-        open_sequence("scannet", folder)
+    with _warns(folder / "pose" / "1.txt", r"pose is not a rigid transform .*left out of the evaluation \(1 such"):
+        seq = open_sequence("scannet", folder)
+    np.testing.assert_array_equal(seq.gt_trajectory()[2], [True, False, True])
+    np.testing.assert_array_equal(seq.gt_trajectory()[1][1], np.eye(4))
 
 
-def test_tum_quaternion_far_from_unit_is_reported(tmp_path, scene):
+def test_non_finite_pose_matrix_is_left_out_of_the_evaluation_with_a_warning(tmp_path, scene):
+    folder = write_sevenscenes(tmp_path, scene)
+    (folder / "frame-000002.pose.txt").write_text("-inf -inf -inf -inf\n" * 4)
+    with _warns(folder / "frame-000002.pose.txt", r"non-finite values; left out of the evaluation"):
+        seq = open_sequence("7scenes", folder)
+    np.testing.assert_array_equal(seq.gt_trajectory()[2], [True, True, False])
+
+
+def test_tum_groundtruth_samples_not_unit_or_not_finite_are_left_out_with_a_warning(tmp_path, scene):
     folder = write_tum_by_hand(tmp_path, scene)
-    with open(folder / "groundtruth.txt", "a") as handle:
-        handle.write("1305031110.0 0 0 0 0 0 0 2\n")
-    with _raises(folder / "groundtruth.txt", r"pose is not a rigid transform \(quaternion norm 2"):
-        open_sequence("tum", folder, intrinsics=scene[0])
+    lines = (folder / "groundtruth.txt").read_text().splitlines()
+    lines[3] = f"{lines[3].split()[0]} 0 0 0 0 0 0 2"  # frame 1's nearest sample (line 4) ...
+    lines[4] = f"{lines[4].split()[0]} nan 0 0 0 0 0 1"  # ... and the one 13 ms later (line 5)
+    (folder / "groundtruth.txt").write_text("\n".join(lines) + "\n")
+    with _warns(f"{folder / 'groundtruth.txt'}:4", r"pose is not a rigid transform \(quaternion norm 2"), \
+            _warns(f"{folder / 'groundtruth.txt'}:5", r"pose has non-finite values; left out of the evaluation"):
+        seq = open_sequence("tum", folder, intrinsics=scene[0])
+    np.testing.assert_array_equal(seq.gt_trajectory()[2], [True, False, True])
 
 
 @pytest.mark.parametrize("dataset", ["replica", "scannet", "7scenes", "tum"])

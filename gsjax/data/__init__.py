@@ -14,11 +14,11 @@ The readers and their formats: :mod:`gsjax.data.tum`, :mod:`gsjax.data.replica`,
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
-from gsjax.camera import Intrinsics
-from gsjax.data.frame import DatasetError, Frame, stack_frames
-from gsjax.data.listing import sequence_from_files
+from gsjax.data.frame import DatasetError, DatasetWarning, Frame, stack_frames
+from gsjax.data.listing import GivenIntrinsics, sequence_from_files
 from gsjax.data.replica import list_replica
 from gsjax.data.scannet import list_scannet
 from gsjax.data.sequence import Sequence
@@ -37,7 +37,8 @@ def open_sequence(
     stride: int = 1,
     downscale: int = 1,
     start: int = 0,
-    intrinsics: Intrinsics | None = None,
+    intrinsics: GivenIntrinsics = None,
+    depth_scale: float | None = None,
     register_color: bool = True,
 ) -> Sequence:
     """Open an RGB-D sequence stored in a dataset's own layout; frames are read only when accessed.
@@ -50,7 +51,10 @@ def open_sequence(
       downscale: integer factor; images are reduced by f x f blocks (colour: mean; depth: median of the valid
         samples, invalid when fewer than half are valid) and the intrinsics by ``Intrinsics.downscaled(f)``.
       start: index of the first frame kept (in the dataset's listing).
-      intrinsics: native-resolution intrinsics overriding the dataset's (their size must match the images).
+      intrinsics: the camera, overriding the dataset's: an Intrinsics at the native resolution (its size must
+        match the images), or (fx, fy, cx, cy) in pixels at the stored depth images' size.
+      depth_scale: raw depth units per metre, overriding the dataset's (TUM 5000, 7-Scenes and ScanNet 1000,
+        Replica 6553.5).
       register_color: resample colour into the depth camera where the reader knows the two are not registered
         (7-Scenes; see :mod:`gsjax.data.sevenscenes`); False reads colour as stored.
 
@@ -60,13 +64,23 @@ def open_sequence(
     Raises:
       DatasetError (a ValueError) naming the file, for anything missing, unreadable or inconsistent; checks of
       listings and poses happen here, checks of image contents when a frame is read.
+
+    Warns:
+      DatasetWarning naming the file, for what is handled in a defined way: list files out of order (sorted) or
+      with repeated timestamps (repeats dropped), unpaired TUM images (skipped), ground-truth poses that are not
+      finite or not rigid (left out of the evaluation).
     """
     if dataset not in READERS:
         raise ValueError(f"unknown dataset {dataset!r}; expected one of {', '.join(READERS)}")
+    if depth_scale is not None and not (isinstance(depth_scale, (int, float)) and math.isfinite(depth_scale)
+                                        and depth_scale > 0):
+        raise ValueError(f"depth_scale must be a finite number > 0 (raw units per metre), got {depth_scale!r}")
     path = Path(path)
     if not path.is_dir():
         raise DatasetError(f"{path}: {dataset} sequence directory is missing")
     files = READERS[dataset](path, intrinsics)
+    if depth_scale is not None:
+        files = dataclasses.replace(files, depth_scale=float(depth_scale))
     if not register_color:
         files = dataclasses.replace(files, color_camera=None)
     return sequence_from_files(files, path, start=start, stride=stride, max_frames=max_frames, downscale=downscale)
@@ -74,6 +88,7 @@ def open_sequence(
 
 __all__ = [
     "DatasetError",
+    "DatasetWarning",
     "Frame",
     "Sequence",
     "SyntheticConfig",

@@ -19,6 +19,11 @@ class DatasetError(ValueError):
     """A dataset on disk is missing, malformed or inconsistent; the message names the file and the problem."""
 
 
+class DatasetWarning(UserWarning):
+    """Something in a dataset that gsjax handles in a defined way (a sorted list, a frame left out of the
+    evaluation, ...) but the user should know about; the message names the file (and frame) and what was done."""
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Frame:
@@ -60,6 +65,13 @@ def stack_frames(frames: list[Frame]) -> Frame:
     if not frames:
         raise ValueError("stack_frames needs at least one frame")
     return jax.tree.map(lambda *leaves: np.stack(leaves), *frames)
+
+
+def without_ground_truth(frame: Frame) -> Frame:
+    """The same Frame with the ground-truth pose blanked (identity, ``pose_valid`` False): what the SLAM core gets,
+    so its result cannot depend on whether a dataset has ground truth."""
+    eye = np.broadcast_to(np.eye(4, dtype=np.float32), np.shape(frame.c2w))
+    return dataclasses.replace(frame, c2w=eye, pose_valid=np.zeros(np.shape(frame.pose_valid), bool))
 
 
 def to_device(frame: Frame) -> Frame:

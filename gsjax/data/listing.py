@@ -17,10 +17,26 @@ import numpy as np
 
 from gsjax.camera import Intrinsics, make_intrinsics
 from gsjax.data.frame import DatasetError
-from gsjax.data.images import load_rgbd
+from gsjax.data.images import image_size, load_rgbd
 from gsjax.data.poses import read_pose_files
 from gsjax.data.registration import ColorCamera
 from gsjax.data.sequence import Sequence
+
+
+# What a caller may give a reader instead of the dataset's own intrinsics: Intrinsics (native size), or the pinhole
+# values (fx, fy, cx, cy) in pixels at the size of the stored depth images (``gsjax run --intrinsics``).
+GivenIntrinsics = Intrinsics | tuple[float, float, float, float] | None
+
+
+def given_intrinsics(given: GivenIntrinsics, first_depth: Path) -> Intrinsics | None:
+    """The caller's intrinsics as :class:`Intrinsics`: as they are, or (fx, fy, cx, cy) at the size of
+    ``first_depth`` (read from that image); None when none were given (the reader then uses the dataset's own)."""
+    if given is None or isinstance(given, Intrinsics):
+        return given
+    values = tuple(given)
+    if len(values) != 4:
+        raise ValueError(f"intrinsics must be (fx, fy, cx, cy), got {len(values)} numbers")
+    return make_intrinsics(*values, *image_size(first_depth))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,12 +125,15 @@ def sequence_from_files(
         c2w=files.c2w[keep],
         pose_valid=files.pose_valid[keep],
         read_rgbd=read_rgbd,
+        files=list(zip(color_paths, depth_paths)),
+        depth_scale=files.depth_scale,
     )
 
 
-def numbered_files(directory: Path, pattern: str, expected: str) -> dict[int, Path]:
+def numbered_files(directory: Path, pattern: str, expected: str | None) -> dict[int, Path]:
     """Files in ``directory`` whose name fully matches ``pattern`` (one group: the frame number) -> {number: path},
-    sorted by number. DatasetError when there is none (the message names ``expected``, e.g. "frameNNNNNN.jpg")."""
+    sorted by number. DatasetError when there is none (the message names ``expected``, e.g. "frameNNNNNN.jpg"),
+    unless ``expected`` is None."""
     regex = re.compile(pattern)
     if not directory.is_dir():
         raise DatasetError(f"{directory}: directory is missing")
@@ -126,9 +145,19 @@ def numbered_files(directory: Path, pattern: str, expected: str) -> dict[int, Pa
             if number in found:
                 raise DatasetError(f"{directory}: two files for frame {number}: {found[number].name}, {path.name}")
             found[number] = path
-    if not found:
+    if not found and expected is not None:
         raise DatasetError(f"{directory}: empty sequence (no {expected})")
     return dict(sorted(found.items()))
+
+
+def require_color_for_depth(colors: dict[int, Path], depths: dict[int, Path], color_name) -> None:
+    """DatasetError naming the colour image a frame lacks when a depth image is numbered as no colour image is;
+    ``color_name(number)`` is the expected colour path (the frames of a numbered layout are its colour images)."""
+    orphans = sorted(set(depths) - set(colors))
+    if orphans:
+        number = orphans[0]
+        raise DatasetError(f"{color_name(number)}: colour image is missing (its depth image {depths[number].name} is "
+                           f"present; {len(orphans)} frame(s) without colour in all)")
 
 
 def files_per_frame(

@@ -1,38 +1,55 @@
 """Ground-truth pose parsing and checks, host-side in float64 (jax runs float32 here, too coarse for GT).
 
-Poses are camera-to-world 4x4 matrices (m). A pose whose numbers are not all finite (ScanNet writes ``-inf`` for
-frames where its reconstruction lost track) is *missing*: flagged invalid, never dropped. A finite matrix that is
-not a rigid transform is an error.
+Poses are camera-to-world 4x4 matrices (m). Ground truth serves evaluation only, so a bad pose never stops a run:
+a pose whose numbers are not all finite (ScanNet writes ``-inf`` where its reconstruction lost track) or that is
+not a rigid transform is flagged invalid, with a :class:`DatasetWarning` naming the file, and its frame is left out
+of the evaluation. A frame without a pose (no file, no line) is simply flagged invalid. A pose file that cannot be
+parsed at all is an error.
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import rigidity_error
-from gsjax.data.frame import DatasetError
+from gsjax.data.frame import DatasetError, DatasetWarning
 
 # Largest tolerated |R^T R - I|, |det R - 1| or deviation of the last row from (0, 0, 0, 1). Real GT is far
 # inside (7-Scenes' KinectFusion poses: 1.5e-4; ScanNet and Replica: ~1e-7); scaled or sheared matrices are far out.
 RIGIDITY_TOLERANCE = 1e-2
 
 
-def check_poses(c2w: np.ndarray, where: list[str]) -> np.ndarray:
-    """Validate poses [T, 4, 4] -> valid [T] bool (finite ones); ``where[i]`` names pose i's source in errors."""
-    valid = np.all(np.isfinite(c2w), axis=(-1, -2))
-    # gsjax.camera's check in float32 (ample against the tolerance); missing poses are checked as the identity.
-    error = np.asarray(rigidity_error(jnp.asarray(np.where(valid[:, None, None], c2w, np.eye(4)), jnp.float32)))
-    bad = np.flatnonzero(~(error <= RIGIDITY_TOLERANCE))  # NaN (entries beyond float32) is bad too
-    if bad.size:
-        i = int(bad[0])
-        raise DatasetError(
-            f"{where[i]}: pose is not a rigid transform (deviation {error[i]:.3g} > {RIGIDITY_TOLERANCE}); "
-            f"{bad.size} such pose(s) in all"
-        )
-    return valid
+def warn_bad_poses(where: list[str], bad: np.ndarray, problem: str) -> None:
+    """One DatasetWarning for the poses flagged in ``bad`` [T] bool: the first one's source and the count."""
+    count = int(np.sum(bad))
+    if count:
+        first = where[int(np.flatnonzero(bad)[0])]
+        warnings.warn(f"{first}: {problem}; left out of the evaluation ({count} such pose(s) in all)", DatasetWarning,
+                      stacklevel=3)
+
+
+def check_poses(c2w: np.ndarray, where: list[str], present: np.ndarray | None = None) -> np.ndarray:
+    """Poses [T, 4, 4] -> valid [T] bool: present, finite and rigid; ``where[i]`` names pose i's source.
+
+    ``present`` [T] bool marks the frames that have a pose at all (default: all); the others are invalid without a
+    word. Non-finite and non-rigid poses are invalid with a warning each kind (:func:`warn_bad_poses`).
+    """
+    present = np.ones(len(c2w), bool) if present is None else np.asarray(present, bool)
+    finite = np.all(np.isfinite(c2w), axis=(-1, -2))
+    # gsjax.camera's check in float32 (ample against the tolerance); non-finite poses are checked as the identity.
+    error = np.asarray(rigidity_error(jnp.asarray(np.where(finite[:, None, None], c2w, np.eye(4)), jnp.float32)))
+    rigid = error <= RIGIDITY_TOLERANCE  # NaN (entries beyond float32) is not rigid
+    warn_bad_poses(where, present & ~finite, "pose has non-finite values")
+    bad_rigid = present & finite & ~rigid
+    if bad_rigid.any():
+        i = int(np.flatnonzero(bad_rigid)[0])
+        warn_bad_poses(where, bad_rigid, f"pose is not a rigid transform (deviation {error[i]:.3g} > "
+                       f"{RIGIDITY_TOLERANCE})")
+    return present & finite & rigid
 
 
 def parse_numbers(line: str, count: int, where: str) -> np.ndarray:
@@ -69,13 +86,14 @@ def read_matrix(path: Path, rows: int) -> np.ndarray:
 def read_pose_files(paths: list[Path]) -> tuple[np.ndarray, np.ndarray]:
     """One 4x4 camera-to-world text file per frame -> (c2w [N, 4, 4] float64, valid [N] bool).
 
-    A missing file or a non-finite matrix flags the frame invalid; an unparsable or non-rigid one is an error.
+    A missing file flags the frame invalid; a non-finite or non-rigid matrix too, with a warning
+    (:func:`check_poses`); an unparsable one is an error.
     """
     c2w = np.full((len(paths), 4, 4), np.nan)
-    for i, path in enumerate(paths):
-        if path.is_file():
-            c2w[i] = read_matrix(path, 4)
-    return c2w, check_poses(c2w, [str(p) for p in paths])
+    present = np.array([path.is_file() for path in paths], bool)
+    for i in np.flatnonzero(present):
+        c2w[i] = read_matrix(paths[i], 4)
+    return c2w, check_poses(c2w, [str(p) for p in paths], present)
 
 
 def read_pose_lines(path: Path, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -87,4 +105,4 @@ def read_pose_lines(path: Path, count: int) -> tuple[np.ndarray, np.ndarray]:
     for k, (n, line) in enumerate(lines[:count]):
         c2w[k] = parse_numbers(line, 16, f"{path}:{n}").reshape(4, 4)
         where[k] = f"{path}:{n}"
-    return c2w, check_poses(c2w, where)
+    return c2w, check_poses(c2w, where, np.arange(count) < len(lines))

@@ -13,24 +13,30 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.camera import Intrinsics, make_intrinsics
+from gsjax.camera import make_intrinsics
 from gsjax.data.frame import DatasetError
-from gsjax.data.listing import FrameFiles, numbered_files, read_json_numbers
+from gsjax.data.listing import (FrameFiles, GivenIntrinsics, given_intrinsics, numbered_files, read_json_numbers,
+                                require_color_for_depth)
 from gsjax.data.poses import read_pose_lines
 
 DEFAULT_CAMERA = {"w": 1200, "h": 680, "fx": 600.0, "fy": 600.0, "cx": 599.5, "cy": 339.5, "scale": 6553.5}
 
 
-def list_replica(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
+def list_replica(path: Path, intrinsics: GivenIntrinsics = None) -> FrameFiles:
     """List a NICE-SLAM Replica scene directory (the one holding ``results/`` and ``traj.txt``)."""
     path = Path(path)
     colors = numbered_files(path / "results", r"frame(\d+)\.(?:jpg|png)", "frameNNNNNN.jpg")
+    suffix = next(iter(colors.values())).suffix
+    depths = numbered_files(path / "results", r"depth(\d+)\.png", None)
+    require_color_for_depth(colors, depths, lambda n: path / "results" / f"frame{n:06d}{suffix}")
+    depth_paths = [p.with_name("depth" + p.name[len("frame") :]).with_suffix(".png") for p in colors.values()]
     numbers = np.array(list(colors), np.int64)
     c2w, valid = read_pose_lines(path / "traj.txt", int(numbers.max()) + 1)
     camera = dict(DEFAULT_CAMERA)
     params = path.parent / "cam_params.json"
     if params.exists():
         camera |= read_json_numbers(params, ("fx", "fy", "cx", "cy"), ("w", "h", "scale"), within="camera")
+    intrinsics = given_intrinsics(intrinsics, depth_paths[0])
     if intrinsics is None:
         try:
             intrinsics = make_intrinsics(*(camera[key] for key in ("fx", "fy", "cx", "cy", "h", "w")))
@@ -39,7 +45,7 @@ def list_replica(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles
     return FrameFiles(
         name=path.name,
         color_paths=list(colors.values()),
-        depth_paths=[p.with_name("depth" + p.name[len("frame") :]).with_suffix(".png") for p in colors.values()],
+        depth_paths=depth_paths,
         timestamps=numbers.astype(np.float64),
         c2w=c2w[numbers],
         pose_valid=valid[numbers],

@@ -14,18 +14,24 @@ from pathlib import Path
 from gsjax.camera import Intrinsics
 from gsjax.data.frame import DatasetError
 from gsjax.data.images import image_size
-from gsjax.data.listing import FrameFiles, files_per_frame, intrinsics_from_matrix, numbered_files
+from gsjax.data.listing import (FrameFiles, GivenIntrinsics, files_per_frame, given_intrinsics, intrinsics_from_matrix,
+                                numbered_files, require_color_for_depth)
 from gsjax.data.poses import read_matrix
 
 DEPTH_SCALE = 1000.0  # raw units per metre
 
 
-def list_scannet(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
+def list_scannet(path: Path, intrinsics: GivenIntrinsics = None) -> FrameFiles:
     """List a ScanNet scene export directory (holding ``color/``, ``depth/``, ``pose/``, ``intrinsic/``)."""
     path = Path(path)
     colors = numbered_files(path / "color", r"(\d+)\.(?:jpg|png)", "N.jpg")
+    suffix = next(iter(colors.values())).suffix
+    if (path / "depth").is_dir():
+        depths = numbered_files(path / "depth", r"(\d+)\.png", None)
+        require_color_for_depth(colors, depths, lambda n: path / "color" / f"{n}{suffix}")
     stems = [p.stem for p in colors.values()]
     depth_paths = [path / "depth" / f"{stem}.png" for stem in stems]
+    intrinsics = given_intrinsics(intrinsics, depth_paths[0])
     if intrinsics is None:
         intrinsics = _scannet_intrinsics(path / "intrinsic", depth_paths[0], next(iter(colors.values())))
     pose_paths = [path / "pose" / f"{stem}.txt" for stem in stems]

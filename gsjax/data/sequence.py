@@ -7,6 +7,7 @@ The interface every dataset shares: ``len``, ``seq[i] -> Frame``, iteration, ``c
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import numpy as np
 
@@ -24,6 +25,7 @@ class Sequence:
       name: a short name (usually the directory's).
       intrinsics: :class:`gsjax.camera.Intrinsics` of the frames as returned (after downscaling).
       timestamps: [T] float64 seconds (the frame number where the dataset has no timestamps).
+      depth_scale: raw depth units per metre of the files read (None where frames are not read from files).
     """
 
     def __init__(
@@ -35,6 +37,8 @@ class Sequence:
         c2w: np.ndarray,
         pose_valid: np.ndarray,
         read_rgbd: ReadRGBD,
+        files: list[tuple[Path, Path]] | None = None,
+        depth_scale: float | None = None,
     ):
         count = len(timestamps)
         if c2w.shape != (count, 4, 4) or pose_valid.shape != (count,):
@@ -46,6 +50,8 @@ class Sequence:
         self._c2w = np.where(pose_valid[:, None, None], c2w, np.eye(4)).astype(np.float64)
         self._pose_valid = np.asarray(pose_valid, bool)
         self._read_rgbd = read_rgbd
+        self._files = files
+        self.depth_scale = depth_scale
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -74,6 +80,15 @@ class Sequence:
         """Ground truth without reading any image: (timestamps [T] float64 s, camera-to-world poses [T, 4, 4]
         float64 m (identity where invalid), valid [T] bool)."""
         return self.timestamps.copy(), self._c2w.copy(), self._pose_valid.copy()
+
+    def frame_files(self, index: int) -> tuple[Path, Path] | None:
+        """(colour path, depth path) of frame ``index``, or None where frames are not read from files."""
+        return None if self._files is None else self._files[index]
+
+    def describe_frame(self, index: int) -> str:
+        """``frame i`` and, where frames come from files, its depth image: for messages about a frame."""
+        files = self.frame_files(index)
+        return f"frame {index}" if files is None else f"frame {index} ({files[1]})"
 
     def read_host(self, index: int) -> Frame:
         """Frame ``index`` as numpy arrays (read now, no device transfer): for writers and host-side tools."""

@@ -24,7 +24,8 @@ import numpy as np
 
 from gsjax.camera import Intrinsics, make_intrinsics
 from gsjax.data.images import image_size
-from gsjax.data.listing import FrameFiles, files_per_frame, intrinsics_from_matrix, numbered_files
+from gsjax.data.listing import (FrameFiles, GivenIntrinsics, files_per_frame, given_intrinsics, intrinsics_from_matrix,
+                                numbered_files, require_color_for_depth)
 from gsjax.data.poses import read_matrix
 from gsjax.data.registration import ColorCamera
 
@@ -42,12 +43,16 @@ def _is_nominal(intrinsics: Intrinsics) -> bool:
     return intrinsics.shape == NOMINAL_SIZE and np.allclose(values, NOMINAL_K)
 
 
-def list_sevenscenes(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
+def list_sevenscenes(path: Path, intrinsics: GivenIntrinsics = None) -> FrameFiles:
     """List a directory of 7-Scenes frames (one ``seq-XX`` folder, or a 3DMatch ``data/`` folder)."""
     path = Path(path)
     colors = numbered_files(path, r"frame-(\d+)\.color\.(?:jpg|png)", "frame-NNNNNN.color.jpg/png")
+    suffix = next(iter(colors.values())).suffix
+    depths = numbered_files(path, r"frame-(\d+)\.depth\.png", None)
+    require_color_for_depth(colors, depths, lambda n: path / f"frame-{n:06d}.color{suffix}")
     stems = [p.name.split(".")[0] for p in colors.values()]
     depth_paths = [path / f"{stem}.depth.png" for stem in stems]
+    intrinsics = given_intrinsics(intrinsics, depth_paths[0])
     if intrinsics is None:
         size = image_size(depth_paths[0])
         k_path = path / "camera-intrinsics.txt"

@@ -4,15 +4,21 @@ Layout (https://cvg.cit.tum.de/data/datasets/rgbd-dataset/file_formats): ``rgb.t
 ``timestamp filename`` per line, ``groundtruth.txt`` lists ``timestamp tx ty tz qx qy qz qw`` (camera-to-world,
 m), lines starting with ``#`` are comments; depth is 16-bit PNG with 5000 units per metre, 0 invalid.
 
-Association (as TUM's ``associate.py``): colour and depth timestamps are paired one-to-one, greedily by smallest
-time difference, within 0.02 s; a colour frame with no depth partner is dropped (with a warning giving the
-count; an error when none is left). Each kept frame takes the ground-truth sample nearest in time if it lies
-within 0.02 s; otherwise its pose is flagged invalid. The frame's timestamp is its colour timestamp.
+A list whose timestamps are out of order is sorted, and a timestamp listed twice keeps its first line, each with a
+:class:`DatasetWarning` naming the list file.
 
-Intrinsics, first found wins: the ``intrinsics`` argument; ``intrinsics.json`` beside ``rgb.txt`` (``fx, fy, cx,
-cy`` and optionally ``width, height``, else the first colour image's size); the Freiburg camera named by the
-directory (``freiburg1``/``fr1``... in its name or its parent's), with the values of the TUM documentation at
-640x480. Lens distortion (fr1, fr2) is not modelled, as in SplaTAM.
+Association (as TUM's ``associate.py``): colour and depth timestamps are paired one-to-one, greedily by smallest
+time difference, within 0.02 s; a colour frame with no depth partner is dropped, and so is a depth image with no
+colour partner (each with a warning giving the count; an error when no pair is left). Each kept frame takes the
+ground-truth sample nearest in time if it lies within 0.02 s; otherwise its pose is flagged invalid. Samples that
+are not finite or whose quaternion is far from unit length are left out, with a warning. The frame's timestamp is
+its colour timestamp.
+
+Intrinsics, first found wins: the ``intrinsics`` argument (an Intrinsics, or (fx, fy, cx, cy) at the size of the
+first depth image); ``intrinsics.json`` beside ``rgb.txt`` (``fx, fy, cx, cy`` and optionally ``width, height``,
+else the first colour image's size); the Freiburg camera named by the directory (``freiburg1``/``fr1``... in its
+name or its parent's), with the values of the TUM documentation at 640x480. Lens distortion (fr1, fr2) is not
+modelled, as in SplaTAM.
 """
 
 from __future__ import annotations
@@ -24,10 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.camera import Intrinsics, make_intrinsics
-from gsjax.data.frame import DatasetError
+from gsjax.data.frame import DatasetError, DatasetWarning
 from gsjax.data.images import image_size
-from gsjax.data.listing import FrameFiles, read_json_numbers
-from gsjax.data.poses import data_lines, parse_numbers
+from gsjax.data.listing import FrameFiles, GivenIntrinsics, given_intrinsics, read_json_numbers
+from gsjax.data.poses import data_lines, parse_numbers, warn_bad_poses
 from gsjax.data.sequence import Sequence
 from gsjax.eval.association import associate_timestamps
 from gsjax.io.atomic import atomic_write_json, atomic_write_text
@@ -44,7 +50,7 @@ FREIBURG_INTRINSICS = {
 _FREIBURG_NAME = re.compile(r"(?:^|[^a-z0-9])(?:freiburg|fr)([123])(?:[^0-9]|$)", re.IGNORECASE)
 
 
-def list_tum(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
+def list_tum(path: Path, intrinsics: GivenIntrinsics = None) -> FrameFiles:
     """List a TUM RGB-D sequence directory (see the module docstring); no image is decoded except, at most, one
     colour image for its size when ``intrinsics.json`` gives none."""
     path = Path(path)
@@ -60,22 +66,24 @@ def list_tum(path: Path, intrinsics: Intrinsics | None = None) -> FrameFiles:
             f"{path / 'depth.txt'}: no depth association: none of the {rgb_times.size} colour timestamps has a depth "
             f"timestamp within {MAX_TIME_DIFFERENCE} s"
         )
-    if rgb_idx.size < rgb_times.size:
-        warnings.warn(
-            f"{path / 'depth.txt'}: {rgb_times.size - rgb_idx.size} of {rgb_times.size} colour frames have no depth "
-            f"within {MAX_TIME_DIFFERENCE} s and are skipped",
-            stacklevel=2,
-        )
+    # Each warning names the list whose entries are left unused.
+    for listed, paired, name, other in ((rgb_times, rgb_idx, "rgb.txt", "colour frames have no depth image"),
+                                        (depth_times, depth_idx, "depth.txt", "depth images have no colour frame")):
+        if paired.size < listed.size:
+            warnings.warn(f"{path / name}: {listed.size - paired.size} of {listed.size} {other} within "
+                          f"{MAX_TIME_DIFFERENCE} s and are skipped", DatasetWarning, stacklevel=2)
     times = rgb_times[rgb_idx]
     c2w, valid = _associate_groundtruth(path / "groundtruth.txt", times)
+    depth_paths = [path / depth_names[i] for i in depth_idx]
+    camera = given_intrinsics(intrinsics, depth_paths[0])
     return FrameFiles(
         name=path.name,
         color_paths=[path / rgb_names[i] for i in rgb_idx],
-        depth_paths=[path / depth_names[i] for i in depth_idx],
+        depth_paths=depth_paths,
         timestamps=times,
         c2w=c2w,
         pose_valid=valid,
-        intrinsics=intrinsics if intrinsics is not None else _tum_intrinsics(path, path / rgb_names[rgb_idx[0]]),
+        intrinsics=camera if camera is not None else _tum_intrinsics(path, path / rgb_names[rgb_idx[0]]),
         depth_scale=DEPTH_SCALE,
     )
 
@@ -108,8 +116,9 @@ def associate(first: np.ndarray, second: np.ndarray, max_difference: float) -> t
 
 
 def _read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
-    """``timestamp filename`` lines -> (timestamps [N] float64 sorted ascending, file names [N])."""
-    entries = []
+    """``timestamp filename`` lines -> (timestamps [N] float64 strictly ascending, file names [N]); out-of-order
+    lines are sorted and repeated timestamps keep their first line, each with a warning naming ``path``."""
+    entries, lines = [], []
     for n, line in data_lines(path):
         fields = line.split()
         if len(fields) < 2:
@@ -118,14 +127,30 @@ def _read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
             stamp = float(fields[0])
         except ValueError:
             raise DatasetError(f"{path}:{n}: cannot parse timestamp {fields[0]!r}") from None
+        if not np.isfinite(stamp):
+            raise DatasetError(f"{path}:{n}: timestamp {fields[0]!r} is not a finite number")
         entries.append((stamp, fields[1]))
-    entries.sort()
-    return np.array([e[0] for e in entries], np.float64), [e[1] for e in entries]
+        lines.append(n)
+    stamps = np.array([e[0] for e in entries], np.float64)
+    backwards = np.flatnonzero(np.diff(stamps) < 0)
+    if backwards.size:
+        k = int(backwards[0]) + 1
+        warnings.warn(f"{path}:{lines[k]}: timestamps out of order ({stamps[k]:.6f} after {stamps[k - 1]:.6f}, "
+                      f"{backwards.size} such line(s)); the list is sorted by timestamp", DatasetWarning, stacklevel=3)
+    order = np.argsort(stamps, kind="stable")  # repeats stay in file order: the first line comes first
+    repeated = np.flatnonzero(np.diff(stamps[order]) == 0) + 1
+    if repeated.size:
+        k = int(order[repeated[0]])
+        warnings.warn(f"{path}:{lines[k]}: timestamp {stamps[k]:.6f} is listed more than once ({repeated.size} "
+                      f"repeated line(s)); each repeat is dropped, the first line kept", DatasetWarning, stacklevel=3)
+    keep = np.delete(order, repeated)
+    return stamps[keep], [entries[i][1] for i in keep]
 
 
 def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Nearest groundtruth pose within the tolerance for each time -> (c2w [T, 4, 4], valid [T]); all invalid
-    when ``groundtruth.txt`` is absent (TUM's test sequences have none). Non-finite samples are ignored.
+    when ``groundtruth.txt`` is absent (TUM's test sequences have none). Non-finite samples and samples whose
+    quaternion is not of unit length are left out, with a warning.
 
     Nearest neighbour, the rule of trajectory evaluation (:func:`gsjax.eval.association.associate_timestamps`), not
     :func:`associate`'s one-to-one matching: GT is sampled far faster than the frames (100 Hz vs 30 Hz), so each
@@ -133,13 +158,15 @@ def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, n
     c2w, valid = np.tile(np.eye(4), (times.size, 1, 1)), np.zeros(times.size, bool)
     lines = data_lines(path) if path.exists() else []
     rows = np.stack([parse_numbers(line, 8, f"{path}:{n}") for n, line in lines]) if lines else np.zeros((0, 8))
-    quat_norm = np.linalg.norm(rows[:, 4:], axis=-1)
-    bad = np.flatnonzero(np.abs(quat_norm - 1.0) > 1e-2)  # NaN norms compare False: treated as missing below
-    if bad.size:
-        n = lines[int(bad[0])][0]
-        norm = quat_norm[bad[0]]
-        raise DatasetError(f"{path}:{n}: pose is not a rigid transform (quaternion norm {norm:.4g}, not 1)")
-    rows = rows[np.isfinite(rows).all(axis=-1)]
+    where = [f"{path}:{n}" for n, _ in lines]
+    finite = np.isfinite(rows).all(axis=-1)
+    quat_norm = np.linalg.norm(np.where(finite[:, None], rows[:, 4:], 0.5), axis=-1)  # non-finite rows: norm 1
+    rigid = np.abs(quat_norm - 1.0) <= 1e-2
+    warn_bad_poses(where, ~finite, "pose has non-finite values")
+    if not rigid.all():
+        norm = quat_norm[np.flatnonzero(~rigid)[0]]
+        warn_bad_poses(where, ~rigid, f"pose is not a rigid transform (quaternion norm {norm:.4g}, not 1)")
+    rows = rows[finite & rigid]
     frame_idx, row_idx = associate_timestamps(times, rows[:, 0], MAX_TIME_DIFFERENCE)
     picked = rows[row_idx]
     q_xyzw = picked[:, 4:] / np.linalg.norm(picked[:, 4:], axis=-1, keepdims=True)
@@ -167,7 +194,8 @@ def _tum_intrinsics(path: Path, first_color: Path) -> Intrinsics:
             return make_intrinsics(*FREIBURG_INTRINSICS[int(match.group(1))], height=480, width=640)
     raise DatasetError(
         f"{path}: cannot determine the camera intrinsics: no intrinsics.json beside rgb.txt and the directory name "
-        "names no Freiburg camera (freiburg1/2/3 or fr1/2/3); pass intrinsics=... explicitly"
+        "names no Freiburg camera (freiburg1/2/3 or fr1/2/3); give them with --intrinsics FX,FY,CX,CY "
+        "(open_sequence(..., intrinsics=(fx, fy, cx, cy))) or in an intrinsics.json beside rgb.txt"
     )
 
 
