@@ -1,6 +1,7 @@
 """The SLAM scan: chunking does not change the result (bit for bit), padding frames are no-ops, one vmapped program
 over a batch of configs and states equals the separate runs, every CB-KNN mode runs, frame 0 initialises the map,
-and a frame whose tracking is non-finite keeps the predicted pose and is counted."""
+a frame whose tracking is non-finite keeps the predicted pose and is counted, ground truth is never read, and
+frames without usable depth are skipped."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import numpy as np
 import pytest
 
 from gsjax.camera import constant_velocity, orthonormalize
+from gsjax.data.frame import without_ground_truth
 from gsjax.slam.config import apply_overrides
 from gsjax.slam.system import run_chunk
 from slam_fixtures import (
@@ -174,3 +176,62 @@ def test_a_non_finite_frame_does_not_poison_the_map():
         values = np.asarray(getattr(state.gaussians, field)).reshape(len(active), -1)
         assert np.isfinite(values[active]).all(), field
     assert int(state.nonfinite_mapping) > 0  # the skipped mapping iterations are counted, not silent
+
+
+# ----------------------------------------------------------------------------- ground truth, frames without depth
+
+
+def test_the_core_never_reads_ground_truth():
+    """The same frames with their GT poses, without any, and with wrong ones give bit for bit the same run."""
+    chunk = frames(0, FRAMES)
+    config, intrinsics = tiny_config(), tiny_sequence().intrinsics
+    with_gt = run_chunk(initial(), chunk, jnp.ones(FRAMES, bool), config, intrinsics)
+    assert bool(np.all(np.asarray(chunk.pose_valid)))
+    blank = without_ground_truth(chunk)
+    assert not np.any(np.asarray(blank.pose_valid)) and np.array_equal(np.asarray(blank.c2w[3]), np.eye(4))
+    wrong = dataclasses.replace(chunk, c2w=jnp.flip(chunk.c2w, axis=0))
+    for other in (blank, wrong):
+        assert_trees_equal(run_chunk(initial(), other, jnp.ones(FRAMES, bool), config, intrinsics), with_gt)
+    assert int(with_gt[0].keyframes.count) == 2  # keyframes 0 and 4, whatever the GT says
+
+
+def _with_depth(chunk, index, depth):
+    return dataclasses.replace(chunk, depth=chunk.depth.at[index].set(depth))
+
+
+def test_a_frame_without_usable_depth_keeps_its_predicted_pose_and_leaves_the_map_alone():
+    """Frame 4 (a keyframe by the frame rule) keeps 10 valid depth pixels of 1200, under the 1 % threshold: it is
+    skipped (predicted pose, no map change, no keyframe), and frame 5 is tracked from there."""
+    config, intrinsics = tiny_config(), tiny_sequence().intrinsics
+    first_state, first_out = run_first_chunk()
+    rest = frames(CHUNK, FRAMES)
+    sparse = jnp.zeros((HEIGHT, WIDTH)).at[5, :10].set(rest.depth[1, 5, :10])
+    rest = _with_depth(rest, 1, sparse)
+    state_3, _ = run_chunk(first_state, rest, valid(True, False, False), config, intrinsics)  # after frame 3
+    state_4, _ = run_chunk(first_state, rest, valid(True, True, False), config, intrinsics)  # after frame 4
+    state, out = run_chunk(first_state, rest, valid(True, True, True), config, intrinsics)
+    np.testing.assert_array_equal(np.asarray(out.skipped), [False, True, False])
+    w2c = np.concatenate([np.asarray(first_out.w2c), np.asarray(out.w2c)])
+    predicted = orthonormalize(constant_velocity(jnp.asarray(w2c[2]), jnp.asarray(w2c[3])))
+    np.testing.assert_allclose(w2c[4], np.asarray(predicted), atol=1e-6)
+    assert_trees_equal(state_4.gaussians, state_3.gaussians)
+    assert_trees_equal(state_4.keyframes, state_3.keyframes)
+    assert not bool(out.keyframe[1]) and int(state.keyframes.count) == 1
+    assert int(out.added[1]) == 0 and float(out.tracking_loss[1]) == 0.0
+    assert float(out.tracking_loss[2]) > 0 and all_finite(state) and all_finite(out)
+    assert int(state.frame) == FRAMES
+
+
+def test_the_first_frame_with_depth_starts_the_map():
+    """Frame 0 has no depth at all: frame 1 initialises the map (not tracked, keyframe 0, world frame), frame 2 on
+    are tracked."""
+    config, intrinsics = tiny_config(), tiny_sequence().intrinsics
+    chunk = _with_depth(frames(0, FRAMES), 0, jnp.zeros((HEIGHT, WIDTH)))
+    state, out = run_chunk(initial(), chunk, jnp.ones(FRAMES, bool), config, intrinsics)
+    np.testing.assert_array_equal(np.asarray(out.skipped), [True] + [False] * (FRAMES - 1))
+    np.testing.assert_array_equal(np.asarray(out.num_gaussians[:2]), [0, WIDTH * HEIGHT])
+    np.testing.assert_array_equal(np.asarray(out.w2c[:2]), np.stack([np.eye(4)] * 2))
+    np.testing.assert_array_equal(np.asarray(out.tracking_loss[:2]), [0.0, 0.0])
+    np.testing.assert_array_equal(np.asarray(out.keyframe), [False, True, False, False, True, False])
+    np.testing.assert_array_equal(np.asarray(state.keyframes.frame[:2]), [1, 4])
+    assert np.all(np.asarray(out.tracking_loss[2:]) > 0) and all_finite(state) and all_finite(out)

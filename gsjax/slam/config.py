@@ -229,6 +229,11 @@ class SlamConfig:
         pixel's silhouette stays above the densification threshold); 128 slots moved the 150-frame ATE by 0.13 cm.
       keyframe_every: a keyframe every this many frames (plus frame 0 and the second-to-last frame).
       scene_radius_depth_ratio: scene radius = max depth of frame 0 / this (used by pruning).
+      min_valid_depth: the fraction of pixels with valid depth a frame needs to be tracked and mapped; a frame
+        with less keeps its constant-velocity prediction and leaves the map alone (:mod:`gsjax.slam.system`).
+        Real RGB-D frames have 60-99 % valid depth; 1 % keeps far too few pixels to constrain a pose. Static (a
+        property of the data, not a hyperparameter to sweep): the decision then depends on the frame alone, so in a
+        batch of configs vmapped over shared frames it stays a branch instead of computing both sides.
     """
 
     tracking: TrackingConfig = TrackingConfig()
@@ -238,10 +243,12 @@ class SlamConfig:
     raster: RasterSettings = RasterSettings(max_contributors=SLAM_MAX_CONTRIBUTORS)
     keyframe_every: int = static(5)
     scene_radius_depth_ratio: float = 3.0
+    min_valid_depth: float = static(0.01)
 
     def __post_init__(self):
         _check_positive_int("config", "keyframe_every", self.keyframe_every)
         _check_number("config", "scene_radius_depth_ratio", self.scene_radius_depth_ratio, 0.0, strict_low=True)
+        _check_number("config", "min_valid_depth", self.min_valid_depth, 0.0, 1.0)
         if self.cbknn.smooth_renders and self.cbknn.params.k_max > self.raster.max_contributors:
             raise ValueError(
                 f"cbknn.params.k_max ({self.cbknn.params.k_max}) exceeds raster.max_contributors "

@@ -1,9 +1,18 @@
 """One SLAM step per frame (track -> densify -> map -> keyframe) and ``lax.scan`` over a chunk of frames.
 
 ``step(state, frame)`` is pure and jit-able; :func:`run_chunk` scans it over a stacked chunk of frames. The shell
-(:mod:`gsjax.slam.runner`) streams chunks from disk, checkpoints and grows capacity between them. Frame 0 goes
+(:mod:`gsjax.runner`) streams chunks from disk, checkpoints and grows capacity between them. The first frame goes
 through the same step: on the empty map every valid pixel is densified (SplaTAM's initialisation), tracking is
 skipped (the first camera defines the world frame), and the frame is mapped and becomes keyframe 0.
+
+The core reads a frame's colour and depth only, never its ground-truth pose (``Frame.c2w``, ``pose_valid``): a
+sequence gives the same result with or without ground truth. (SplaTAM stores a keyframe only where the GT pose is
+finite, a guard for ScanNet's invalid poses; here keyframes follow the frame rule alone.)
+
+A frame with too little valid depth (a fraction below ``SlamConfig.min_valid_depth``: a covered or saturated
+sensor, a dropped depth image) is not tracked, densified, mapped or stored as a keyframe; its pose is the
+constant-velocity prediction and ``StepOutputs.skipped`` is set. Until a frame with depth arrives the map is
+empty, and that frame initialises it.
 """
 
 from __future__ import annotations
@@ -35,7 +44,8 @@ class StepOutputs(NamedTuple):
       added, dropped: [] Gaussians densified / not inserted for lack of capacity; keyframe: [] bool;
       gamma: [] motion used by CB-KNN; nonfinite: [] skipped tracking iterations; truncated: [] bool, the
       densification render was truncated by the rasterizer's capacities; residual: [] the largest
-      transmittance that truncation left in that render.
+      transmittance that truncation left in that render; skipped: [] bool, the frame had too little valid depth
+      and kept its predicted pose.
     """
 
     w2c: jax.Array
@@ -49,22 +59,50 @@ class StepOutputs(NamedTuple):
     nonfinite: jax.Array
     truncated: jax.Array
     residual: jax.Array
+    skipped: jax.Array
+
+
+def _motion(state: SlamState, config: SlamConfig) -> jax.Array:
+    """CB-KNN's inter-frame motion gamma from the last two poses (0 before frame 2)."""
+    params = config.cbknn.params
+    return jnp.where(state.frame >= 2, motion_from_poses(state.w2c_prev2, state.w2c_prev1, params.tau_t, params.tau_r),
+                     0.0)
+
+
+def _predicted_pose(state: SlamState) -> jax.Array:
+    """The constant-velocity prediction of the next pose (the last pose before frame 2)."""
+    return jnp.where(state.frame >= 2, constant_velocity(state.w2c_prev2, state.w2c_prev1), state.w2c_prev1)
 
 
 def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics) -> tuple[SlamState, StepOutputs]:
-    """Process one frame (colour, depth, GT validity); returns the new state and the frame's outputs."""
+    """Process one frame (its colour and depth); returns the new state and the frame's outputs."""
+    usable = jnp.mean(frame.depth > 0) >= config.min_valid_depth
+    return jax.lax.cond(usable, lambda s: _process(s, frame, config, intrinsics), lambda s: _coast(s, config), state)
+
+
+def _coast(state: SlamState, config: SlamConfig) -> tuple[SlamState, StepOutputs]:
+    """A frame without usable depth: the predicted pose, the map and keyframes untouched."""
+    w2c = orthonormalize(_predicted_pose(state))
+    zero = jnp.float32(0.0)
+    outputs = StepOutputs(w2c=w2c, tracking_loss=zero, mapping_loss=zero, num_gaussians=state.gaussians.num_active(),
+                          added=jnp.int32(0), dropped=jnp.int32(0), keyframe=jnp.bool_(False),
+                          gamma=jnp.asarray(_motion(state, config), jnp.float32), nonfinite=jnp.int32(0),
+                          truncated=jnp.bool_(False), residual=zero, skipped=jnp.bool_(True))
+    new_state = dataclasses.replace(state, w2c_prev1=w2c, w2c_prev2=state.w2c_prev1,
+                                    key=jax.random.split(state.key, 3)[2], frame=state.frame + 1)
+    return new_state, outputs
+
+
+def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics):
     t = state.frame
-    keyframe = is_keyframe(t, state.num_frames, config.keyframe_every)
+    started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
+    keyframe = is_keyframe(t, state.num_frames, config.keyframe_every) | ~started
     smooth = jnp.asarray(config.cbknn.smooth_renders) & keyframe
-    gamma = jnp.where(
-        t >= 2,
-        motion_from_poses(state.w2c_prev2, state.w2c_prev1, config.cbknn.params.tau_t, config.cbknn.params.tau_r),
-        0.0,
-    )
+    gamma = _motion(state, config)
     key_window, key_map, key_next = jax.random.split(state.key, 3)
 
     with jax.named_scope("track"):
-        w2c_init = jnp.where(t >= 2, constant_velocity(state.w2c_prev2, state.w2c_prev1), state.w2c_prev1)
+        w2c_init = _predicted_pose(state)
 
         def do_track():
             result = track(state.gaussians, frame.color, frame.depth, w2c_init, intrinsics, config, smooth, gamma)
@@ -73,7 +111,7 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
         def skip_track():
             return w2c_init, jnp.float32(0.0), jnp.int32(0)
 
-        w2c, tracking_loss, nonfinite = jax.lax.cond(t > 0, do_track, skip_track)
+        w2c, tracking_loss, nonfinite = jax.lax.cond(started, do_track, skip_track)
         w2c = orthonormalize(w2c)
 
     with jax.named_scope("densify"):
@@ -82,15 +120,15 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
         inserted = densify(state.gaussians, jax.lax.stop_gradient(view), frame.color, frame.depth, w2c, intrinsics,
                            config.densify)
         gaussians = inserted.gaussians
-        scene_radius = jnp.where(t == 0, jnp.max(frame.depth) / config.scene_radius_depth_ratio, state.scene_radius)
+        scene_radius = jnp.where(started, state.scene_radius, jnp.max(frame.depth) / config.scene_radius_depth_ratio)
 
     with jax.named_scope("map"):
         window = select_window(key_window, state.keyframes, frame.depth, w2c, intrinsics, config.mapping,
                                config.cbknn)
         views = window_views(window, state.keyframes, frame.color, frame.depth, w2c, gamma, keyframe)
-        mapped = map_window(key_map, gaussians, views, intrinsics, config, scene_radius, first=t == 0)
+        mapped = map_window(key_map, gaussians, views, intrinsics, config, scene_radius, first=~started)
 
-    keyframes = state.keyframes.push(frame.color, frame.depth, w2c, t, gamma, keyframe & frame.pose_valid)
+    keyframes = state.keyframes.push(frame.color, frame.depth, w2c, t, gamma, keyframe)
     new_state = dataclasses.replace(
         state,
         gaussians=mapped.gaussians,
@@ -116,6 +154,7 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
         nonfinite=nonfinite,
         truncated=view.truncated,
         residual=view.residual,
+        skipped=jnp.bool_(False),
     )
     return new_state, outputs
 
