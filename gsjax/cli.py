@@ -2,13 +2,16 @@
 
 Each subcommand has an ``_add_<name>(subparsers)`` that declares its flags and a ``_cmd_<name>(args)`` that runs
 it. Heavy imports happen inside the command functions so ``gsjax --help`` stays fast. User errors (bad paths,
-bad values) are reported as one line ``gsjax <cmd>: error: ...`` with exit status 2, never a stack trace.
+bad values, bad data) are reported as one line ``gsjax <cmd>: error: ...`` with exit status 2, never a stack
+trace (``--debug`` shows it); what gsjax handles in a defined way is printed as ``warning: ...``.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+import warnings
 from pathlib import Path
 
 
@@ -16,12 +19,46 @@ class UserError(Exception):
     """An error caused by the user's input; printed without a traceback."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (``gsjax run: error: argument --x: ...``), like every other error."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _dataset_warnings(open_fn):
+    """Call ``open_fn()``; print each distinct DatasetWarning it raised as one ``warning: ...`` line on stderr (other
+    warnings as Python shows them) -> (its result, the DatasetWarning messages). Distinct: ``gsjax run`` lists a
+    dataset twice (once to learn its image size)."""
+    from gsjax.data import DatasetWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DatasetWarning)
+        result = open_fn()
+    messages = []
+    for item in caught:
+        if issubclass(item.category, DatasetWarning):
+            if str(item.message) in messages:
+                continue
+            messages.append(str(item.message))
+            print(f"warning: {item.message}", file=sys.stderr, flush=True)
+        else:
+            warnings.showwarning(item.message, item.category, item.filename, item.lineno)
+    return result, messages
+
+
 # The layouts gsjax.data.open_sequence reads (gsjax.data.READERS; not imported here, to keep --help fast).
 DATASETS = ("tum", "replica", "scannet", "7scenes")
 
 
+# Options every subcommand takes.
+COMMON = argparse.ArgumentParser(add_help=False)
+COMMON.add_argument("--debug", action="store_true", help="show the full traceback of an error")
+
+
 def _add_eval(sub) -> None:
-    p = sub.add_parser("eval", help="trajectory metrics (ATE, RPE) of an estimate against ground truth")
+    p = sub.add_parser("eval", help="trajectory metrics (ATE, RPE) of an estimate against ground truth",
+                       parents=[COMMON])
     p.add_argument("--est", type=Path, required=True, help="estimated trajectory, TUM format (camera-to-world)")
     p.add_argument("--gt", type=Path, required=True,
                    help="ground truth: a TUM trajectory file, or a dataset directory (with --dataset)")
@@ -45,7 +82,7 @@ def _read_ground_truth(gt: Path, dataset: str | None):
             )
         from gsjax.data import open_sequence
 
-        return open_sequence(dataset, gt).gt_trajectory()  # reads the poses, no image
+        return _dataset_warnings(lambda: open_sequence(dataset, gt).gt_trajectory())[0]  # reads no image
     if not gt.is_file():
         raise UserError(f"--gt {gt}: no such file")
     if dataset is not None:
@@ -107,7 +144,8 @@ def _cmd_eval(args) -> int:
 
 
 def _add_synth(sub) -> None:
-    p = sub.add_parser("synth", help="render a synthetic RGB-D sequence and write it in the TUM RGB-D layout")
+    p = sub.add_parser("synth", help="render a synthetic RGB-D sequence and write it in the TUM RGB-D layout",
+                       parents=[COMMON])
     p.add_argument("--out", type=Path, required=True, help="output directory (must not exist or be empty)")
     p.add_argument("--frames", type=int, default=60, help="number of frames (default 60)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
@@ -142,6 +180,7 @@ def _add_run(sub) -> None:
         help="run SLAM on a sequence and write trajectory, metrics, plots, renders, map and checkpoints",
         description="Run SLAM on a sequence. Any config field can be overridden by its dotted name, e.g. "
         "--tracking.iters 60 --mapping.lr_means 2e-3 --cbknn.params.alpha 0.3 (see gsjax/slam/config.py).",
+        parents=[COMMON],
     )
     p.add_argument("--dataset", choices=DATASETS + ("synthetic",), required=True)
     p.add_argument("--path", type=Path, default=None, help="dataset directory (not needed for synthetic)")
@@ -153,13 +192,43 @@ def _add_run(sub) -> None:
     p.add_argument("--downscale", type=int, default=None,
                    help="integer image reduction (default: to about 80 px wide for the cpu preset, else 1)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --out")
+    p.add_argument("--intrinsics", type=_pinhole, default=None, metavar="FX,FY,CX,CY",
+                   help="the camera in pixels at the stored image size, overriding the dataset's own")
+    p.add_argument("--depth-scale", type=_depth_scale, default=None, metavar="S",
+                   help="stored depth units per metre, overriding the dataset's (TUM 5000, 7-Scenes 1000)")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    again.add_argument("--overwrite", action="store_true",
+                       help="replace the previous run in --out (removes gsjax's outputs there, nothing else)")
     p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk and checkpoint (default 8)")
     p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--synthetic-noise", action="store_true",
                    help="synthetic dataset only: Kinect-like sensor effects (depth noise, holes, colour noise, blur)")
     p.set_defaults(func=_cmd_run, accepts_overrides=True)
+
+
+def _pinhole(text: str) -> tuple[float, float, float, float]:
+    """``FX,FY,CX,CY`` -> four floats (fx, fy > 0); argparse reports the error naming --intrinsics."""
+    try:
+        values = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4 or not all(map(math.isfinite, values)):
+        raise argparse.ArgumentTypeError(f"expected FX,FY,CX,CY: four numbers in pixels, got {text!r}")
+    if values[0] <= 0 or values[1] <= 0:
+        raise argparse.ArgumentTypeError(f"the focal lengths FX and FY must be > 0, got {text!r}")
+    return values
+
+
+def _depth_scale(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a number > 0 (stored depth units per metre), got {text!r}")
+    return value
 
 
 def _parse_overrides(tokens: list[str]) -> dict[str, str]:
@@ -187,7 +256,12 @@ def _open_run_sequence(args):
 
     if args.stride < 1 or (args.max_frames is not None and args.max_frames < 1):
         raise UserError("--stride and --max-frames must be >= 1")
+    if args.downscale is not None and args.downscale < 1:
+        raise UserError(f"--downscale must be >= 1, got {args.downscale}")
     if args.dataset == "synthetic":
+        for flag, value in (("--intrinsics", args.intrinsics), ("--depth-scale", args.depth_scale)):
+            if value is not None:
+                raise UserError(f"{flag} applies to datasets read from disk; the synthetic scene has its own camera")
         from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 
         base = SyntheticConfig()
@@ -208,16 +282,26 @@ def _open_run_sequence(args):
         raise UserError(f"--dataset {args.dataset} needs --path DIR")
     if not args.path.is_dir():
         raise UserError(f"--path {args.path}: no such directory")
-    probe = open_sequence(args.dataset, args.path, max_frames=1)
-    factor = args.downscale or default_downscale(probe.intrinsics.width, args.preset)
+    camera = dict(intrinsics=args.intrinsics, depth_scale=args.depth_scale)
+    probe = open_sequence(args.dataset, args.path, max_frames=1, **camera)
+    native = probe.intrinsics
+    if args.intrinsics is not None and not (0 <= args.intrinsics[2] <= native.width
+                                            and 0 <= args.intrinsics[3] <= native.height):
+        raise UserError(f"--intrinsics: the principal point ({args.intrinsics[2]:g}, {args.intrinsics[3]:g}) lies "
+                        f"outside the {native.width}x{native.height} images; give the values in pixels at the stored "
+                        "image size")
+    factor = args.downscale or default_downscale(native.width, args.preset)
+    if factor > min(native.width, native.height):
+        raise UserError(f"--downscale {factor} leaves no pixel of the {native.width}x{native.height} images")
     sequence = open_sequence(args.dataset, args.path, max_frames=args.max_frames, stride=args.stride,
-                             downscale=factor)
+                             downscale=factor, **camera)
     return sequence, factor
 
 
 def _cmd_run(args) -> int:
     import logging
 
+    from gsjax.io.run_dir import check_run_dir
     from gsjax.runner import RunOptions, run_slam, summary_lines
     from gsjax.slam.config import apply_overrides, preset, with_cbknn_mode
 
@@ -226,22 +310,24 @@ def _cmd_run(args) -> int:
     for noisy in ("absl", "orbax", "jax"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
     config = apply_overrides(with_cbknn_mode(preset(args.preset), args.cbknn), args.overrides)
-    sequence, factor = _open_run_sequence(args)
     options = RunOptions(out=args.out, chunk=args.chunk, seed=args.seed, resume=args.resume,
-                         eval_every=args.eval_every, progress=not args.no_progress)
+                         overwrite=args.overwrite, eval_every=args.eval_every, progress=not args.no_progress)
+    check_run_dir(args.out, resume=args.resume, overwrite=args.overwrite)  # before reading any data
+    (sequence, factor), input_warnings = _dataset_warnings(lambda: _open_run_sequence(args))
     describe = dict(dataset=args.dataset, path=str(args.path) if args.path else None, preset=args.preset,
                     cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides,
+                    intrinsics=list(args.intrinsics) if args.intrinsics else None, depth_scale=args.depth_scale,
                     sequence=sequence.name)
     print(f"gsjax run: {sequence!r}, preset {args.preset}, CB-KNN {args.cbknn}, downscale {factor} -> {args.out}",
           flush=True)
-    metrics = run_slam(sequence, config, options, describe=describe)
+    metrics = run_slam(sequence, config, options, describe=describe, input_warnings=tuple(input_warnings))
     for line in summary_lines(metrics, args.out):
         print(line)
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="gsjax", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="gsjax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (_add_run, _add_eval, _add_synth):
         add(sub)
@@ -250,16 +336,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args, extra = parser.parse_known_args(argv)
-    if extra and not getattr(args, "accepts_overrides", False):
-        parser.error(f"unrecognised arguments: {' '.join(extra)}")
+    try:  # a usage error (or --help) exits from argparse; in-process callers get its status back
+        args, extra = parser.parse_known_args(argv)
+        if extra and not getattr(args, "accepts_overrides", False):
+            parser.error(f"unrecognised arguments: {' '.join(extra)}")
+    except SystemExit as exit_:
+        return int(exit_.code or 0)
     from gsjax.compilation_cache import enable_compilation_cache
 
     enable_compilation_cache()
     try:
         args.overrides = _parse_overrides(extra)
         return int(args.func(args) or 0)
-    except (UserError, ValueError, FileNotFoundError) as err:
+    except (UserError, ValueError, OSError) as err:  # DatasetError and RunDirError are ValueErrors
+        if args.debug:
+            raise
         print(f"gsjax {args.command}: error: {err}", file=sys.stderr)
         return 2
 

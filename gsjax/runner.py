@@ -8,9 +8,15 @@ The pure core is :func:`gsjax.slam.system.run_chunk`. Between chunks this module
   chunk from its saved starting state, so no Gaussian is ever dropped;
 * shows a progress bar (frame, tracking loss, Gaussians, ATE so far when ground truth exists, frames/s).
 
-At the end it evaluates the trajectory (both ATE variants, RPE), renders the evaluation frames with the final
-map (canonical rendering) for PSNR / MS-SSIM / depth L1, and writes ``trajectory.txt``, ``metrics.json``,
-``trajectory.png``, ``renders/``, ``map.ply`` and ``config.json`` atomically.
+At the end it evaluates the trajectory (both ATE variants, RPE) against every frame with a valid ground-truth
+pose, renders the evaluation frames with the final map (canonical rendering) for PSNR / MS-SSIM / depth L1, and
+writes ``trajectory.txt``, ``metrics.json``, ``trajectory.png``, ``renders/``, ``map.ply`` and ``config.json``
+atomically.
+
+Ground truth is for evaluation only: the frames reach the SLAM core with their GT pose blanked
+(:func:`gsjax.data.frame.without_ground_truth`). What the run handles in a defined way but a user should know
+(frames without usable depth, depth in an implausible unit, and what the reader reported) is printed as a warning
+and listed in ``metrics.json`` under ``warnings``.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -27,8 +34,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import Intrinsics
-from gsjax.data.frame import Frame, stack_frames, to_device
+from gsjax.data.frame import Frame, stack_frames, to_device, without_ground_truth
 from gsjax.data.sequence import Sequence
+from gsjax.io.run_dir import check_run_dir, clear_previous_run
 from gsjax.slam.config import SlamConfig, config_to_dict
 from gsjax.slam.state import SlamState, grow_capacity, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs, run_chunk
@@ -36,6 +44,8 @@ from gsjax.slam.system import StepOutputs, run_chunk
 log = logging.getLogger("gsjax")
 
 CPU_TARGET_WIDTH = 80  # the cpu preset processes about 80x60 pixels
+# Median depth (m) of a frame outside this range means the depth scale is almost surely wrong for an indoor scene.
+PLAUSIBLE_MEDIAN_DEPTH_M = (0.1, 20.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +71,7 @@ class RunOptions:
     capacity: int | None = None
     progress: bool = True
     samples: int = 3
+    overwrite: bool = False
 
     def __post_init__(self):
         for name in ("chunk", "eval_every", "samples"):
@@ -93,11 +104,11 @@ class _Progress:
             self._bar.set_postfix(fields, refresh=False)
             self._bar.update(frames)
 
-    def write(self, message: str) -> None:
+    def write(self, message: str, file=None) -> None:
         if self._bar is not None:
-            self._bar.write(message)
+            self._bar.write(message, file=file)
         else:
-            print(message, flush=True)
+            print(message, file=file, flush=True)
 
     def close(self) -> None:
         if self._bar is not None:
@@ -105,10 +116,11 @@ class _Progress:
 
 
 def _pad_chunk(frames: list[Frame], size: int) -> tuple[Frame, np.ndarray]:
-    """Stack ``frames`` and pad to ``size`` with copies of the last one; (chunk, valid mask [size])."""
+    """Stack ``frames`` without their ground truth and pad to ``size`` with copies of the last one; (chunk on
+    device, valid mask [size])."""
     valid = np.arange(size) < len(frames)
     padded = frames + [frames[-1]] * (size - len(frames))
-    return to_device(stack_frames(padded)), valid
+    return to_device(without_ground_truth(stack_frames(padded))), valid
 
 
 def _outputs_to_lists(outputs: StepOutputs, count: int) -> dict:
@@ -116,21 +128,46 @@ def _outputs_to_lists(outputs: StepOutputs, count: int) -> dict:
 
 
 def _ate_so_far(w2c: np.ndarray, gt_c2w: np.ndarray, gt_valid: np.ndarray) -> float | None:
+    """ATE (m) of the frames so far that have ground truth (the rigid alignment absorbs the world frames)."""
     from gsjax.eval.trajectory import ate_rmse_c2w
 
     n = len(w2c)
-    valid = gt_valid[:n] & gt_valid[0]
-    if n < 3 or valid.sum() < 3:
+    if gt_valid[:n].sum() < 3:
         return None
     try:
-        return ate_rmse_c2w(np.linalg.inv(w2c), _gt_relative(gt_c2w[:n]), valid).value_m
+        return ate_rmse_c2w(np.linalg.inv(w2c), gt_c2w[:n], gt_valid[:n]).value_m
     except ValueError:
         return None
 
 
-def _gt_relative(gt_c2w: np.ndarray) -> np.ndarray:
-    """GT camera-to-world poses re-based on frame 0 (the SLAM world frame is the first camera)."""
-    return np.linalg.inv(gt_c2w[0]) @ gt_c2w
+def _camera_record(sequence: Sequence) -> dict:
+    """The camera the run uses (intrinsics at the working resolution, the depth files' units per metre)."""
+    k = sequence.intrinsics
+    return dict(fx=float(k.fx), fy=float(k.fy), cx=float(k.cx), cy=float(k.cy), width=k.width, height=k.height,
+                depth_scale=sequence.depth_scale)
+
+
+def _depth_fraction(frame: Frame) -> float:
+    return float(np.mean(np.asarray(frame.depth) > 0))
+
+
+def _depth_unit_warning(sequence: Sequence, index: int, frame: Frame) -> str | None:
+    """A warning when frame ``index``'s median valid depth is implausible for an indoor RGB-D camera."""
+    depth = np.asarray(frame.depth)
+    median = float(np.median(depth[depth > 0]))
+    low, high = PLAUSIBLE_MEDIAN_DEPTH_M
+    if low <= median <= high:
+        return None
+    scale = f"{sequence.depth_scale:g} raw units per metre" if sequence.depth_scale else "the dataset's scale"
+    return (f"{sequence.describe_frame(index)}: median depth {median:.3g} m is outside {low:g}-{high:g} m; the depth "
+            f"scale ({scale}) looks wrong for this recording: give the right one with --depth-scale S")
+
+
+def _skipped_warning(sequence: Sequence, index: int, fraction: float, config: SlamConfig, started: bool) -> str:
+    then = "" if started else "; the map starts at the first frame with depth"
+    return (f"{sequence.describe_frame(index)}: only {100 * fraction:.1f}% of the pixels have valid depth (below "
+            f"min_valid_depth {100 * float(config.min_valid_depth):g}%); the frame is not tracked or mapped, its pose "
+            f"is the constant-velocity prediction{then}")
 
 
 def run_slam(
@@ -140,29 +177,42 @@ def run_slam(
     *,
     describe: dict | None = None,
     on_chunk: Callable[[int], None] | None = None,
+    input_warnings: tuple[str, ...] = (),
 ) -> dict:
     """Run SLAM on ``sequence`` with ``config``; write every output under ``options.out``; return the metrics.
 
     ``describe`` (dataset name, path, preset, ...) is recorded in ``config.json`` and ``metrics.json``.
     ``on_chunk(frames_done)`` is called after each checkpoint (tests use it to interrupt a run).
+    ``input_warnings``: what opening the sequence warned about, listed first in ``metrics.json``'s ``warnings``.
+
+    Raises :class:`gsjax.io.run_dir.RunDirError` before writing anything when ``options.out`` holds a previous run
+    and neither ``resume`` nor ``overwrite`` is set, or cannot be used at all (:func:`check_run_dir`).
     """
     from gsjax.io.checkpoint import Checkpoints
 
     out = Path(options.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_run_dir(out, resume=options.resume, overwrite=options.overwrite)
     intrinsics = sequence.intrinsics
     height, width = intrinsics.height, intrinsics.width
     total = len(sequence)
     if total < 1:
         raise ValueError(f"sequence {sequence.name!r} has no frames")
+    sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
+    if options.overwrite:
+        removed = clear_previous_run(out)
+        if removed:
+            log.info("--overwrite: removed the previous run's %s from %s", ", ".join(removed), out)
+    out.mkdir(parents=True, exist_ok=True)
     record = dict(describe or {}, frames=total, width=width, height=height, chunk=options.chunk, seed=options.seed,
-                  config=config_to_dict(config))
+                  camera=_camera_record(sequence), config=config_to_dict(config))
     checkpoints = Checkpoints(out / "checkpoints")
     timings = dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0)
     capacity = options.capacity or 2 * height * width
     kf_capacity = keyframe_capacity_for(total, config.keyframe_every)
     state = initial_state(capacity, height, width, kf_capacity, total, options.seed)
     outputs: dict[str, list] = {}
+    frame_warnings: list[str] = []  # found while running (kept in checkpoints, so a resumed run reports them too)
+    units_checked = False
     done = 0
     first_chunk_s = None
     if options.resume and checkpoints.latest() is not None:
@@ -179,17 +229,32 @@ def run_slam(
         state = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), state)
         outputs, done, capacity = meta["outputs"], meta["frames_done"], meta["capacity"]
         timings, first_chunk_s = meta["timings"], meta["first_chunk_s"]  # timings cover the whole run
+        frame_warnings, units_checked = meta["warnings"], meta["depth_units_checked"]
         log.info("resumed from checkpoint at frame %d (capacity %d)", done, capacity)
     _write_json(out / "config.json", record)
 
     _, gt_c2w, gt_valid = sequence.gt_trajectory()
     progress = _Progress(total, done, options.progress)
+
+    def warn(message: str) -> None:
+        frame_warnings.append(message)
+        progress.write(f"warning: {message}", file=sys.stderr)
+
     try:
         while done < total:
             count = min(options.chunk, total - done)
             t0 = time.perf_counter()
-            frames, valid = _pad_chunk([sequence.read_host(i) for i in range(done, done + count)], options.chunk)
+            host_frames = [sequence.read_host(i) for i in range(done, done + count)]
+            frames, valid = _pad_chunk(host_frames, options.chunk)
             timings["read_frames_s"] += time.perf_counter() - t0
+            fractions = [_depth_fraction(frame) for frame in host_frames]
+            if not units_checked:
+                usable = [i for i, f in enumerate(fractions) if f >= float(config.min_valid_depth)]
+                if usable:
+                    units_checked = True
+                    message = _depth_unit_warning(sequence, done + usable[0], host_frames[usable[0]])
+                    if message:
+                        warn(message)
             while True:
                 t0 = time.perf_counter()
                 new_state, chunk_out = run_chunk(state, frames, jnp.asarray(valid), config, intrinsics)
@@ -207,6 +272,9 @@ def run_slam(
                 state = grow_capacity(state, capacity)
             if first_chunk_s is None:
                 first_chunk_s = elapsed
+            for i in np.flatnonzero(chunk_out.skipped[:count]):
+                warn(_skipped_warning(sequence, done + int(i), fractions[i], config,
+                                      started=int(chunk_out.num_gaussians[i]) > 0))
             state = new_state
             for name, values in _outputs_to_lists(chunk_out, count).items():
                 outputs.setdefault(name, []).extend(values)
@@ -214,7 +282,8 @@ def run_slam(
             t0 = time.perf_counter()
             checkpoints.save(done, state, dict(frames_done=done, capacity=capacity, outputs=outputs,
                                                record=_resume_key(record), timings=timings,
-                                               first_chunk_s=first_chunk_s))
+                                               first_chunk_s=first_chunk_s, warnings=frame_warnings,
+                                               depth_units_checked=units_checked))
             timings["checkpoint_s"] += time.perf_counter() - t0
             w2c = np.asarray(outputs["w2c"], np.float64)
             ate = _ate_so_far(w2c, gt_c2w, gt_valid)
@@ -230,11 +299,11 @@ def run_slam(
         checkpoints.close()
 
     timings["compile_s_estimate"] = _compile_estimate(first_chunk_s, timings["slam_s"], total, options.chunk)
-    return _finish(sequence, config, options, state, outputs, timings, record)
+    return _finish(sequence, config, options, state, outputs, timings, record, [*input_warnings, *frame_warnings])
 
 
 def _resume_key(record: dict) -> dict:
-    return {k: record[k] for k in ("frames", "width", "height", "chunk", "seed", "config")}
+    return {k: record[k] for k in ("frames", "width", "height", "chunk", "seed", "camera", "config")}
 
 
 def _check_resumable(meta: dict, record: dict, out: Path) -> None:
@@ -264,7 +333,8 @@ def _write_json(path: Path, obj) -> None:
     atomic_write_json(path, obj)
 
 
-def _finish(sequence, config, options, state: SlamState, outputs: dict, timings: dict, record: dict) -> dict:
+def _finish(sequence, config, options, state: SlamState, outputs: dict, timings: dict, record: dict,
+            warnings: list[str]) -> dict:
     from gsjax.eval.trajectory import ate_rmse_c2w, evaluate_trajectory
     from gsjax.io.ply import write_ply
     from gsjax.io.plots import plot_trajectory_top_view
@@ -282,16 +352,16 @@ def _finish(sequence, config, options, state: SlamState, outputs: dict, timings:
 
     metrics: dict = dict(dataset=record.get("dataset"), frames=len(est_c2w), width=record["width"],
                          height=record["height"])
+    # Every frame with a valid GT pose is evaluated; the rigid alignment absorbs the world frames (the SLAM one is
+    # the first camera), so frame 0 needs no ground truth.
     if gt_valid.sum() >= 3:
-        valid = gt_valid & gt_valid[0]
-        gt_rel = _gt_relative(gt_c2w) if gt_valid[0] else gt_c2w
-        traj = evaluate_trajectory(timestamps, est_c2w, timestamps, gt_rel, gt_valid=valid)
+        traj = evaluate_trajectory(timestamps, est_c2w, timestamps, gt_c2w, gt_valid=gt_valid)
         metrics["trajectory"] = traj
         identity = np.broadcast_to(np.eye(4), est_c2w.shape).copy()
-        metrics["constant_pose_ate_rmse_c2w_cm"] = 100 * ate_rmse_c2w(identity, gt_rel, valid).value_m
-        aligned = ate_rmse_c2w(est_c2w, gt_rel, valid)
+        metrics["constant_pose_ate_rmse_c2w_cm"] = 100 * ate_rmse_c2w(identity, gt_c2w, gt_valid).value_m
+        aligned = ate_rmse_c2w(est_c2w, gt_c2w, gt_valid)
         plot_trajectory_top_view(out / "trajectory.png", aligned.alignment.apply_points(est_c2w[aligned.used, :3, 3]),
-                                 gt_rel[aligned.used, :3, 3],
+                                 gt_c2w[aligned.used, :3, 3],
                                  title=f"{sequence.name}: ATE RMSE {100 * aligned.value_m:.2f} cm")
     else:
         metrics["trajectory"] = None
@@ -312,6 +382,9 @@ def _finish(sequence, config, options, state: SlamState, outputs: dict, timings:
         nonfinite_mapping_iterations=int(state.nonfinite_mapping),
         frames_with_truncated_render=int(np.sum(outputs["truncated"])),
         max_truncation_residual=float(np.max(outputs["residual"])),
+        skipped_frames=[int(t) for t in np.flatnonzero(outputs["skipped"])],
+        warnings=list(warnings),
+        camera=record["camera"],
         config=record["config"],
     )
     _write_json(out / "metrics.json", metrics)
@@ -319,14 +392,17 @@ def _finish(sequence, config, options, state: SlamState, outputs: dict, timings:
 
 
 def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: SlamState, outputs: dict) -> dict:
-    """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0: the final map
-    rendered canonically at the estimated poses, compared with the input (masked by valid depth)."""
+    """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0, except frames
+    skipped for lack of depth: the final map rendered canonically at the estimated poses, compared with the input
+    (masked by valid depth). ``mean`` is None when no frame is left."""
     from gsjax.eval.image import render_metrics_splatam
     from gsjax.io.images import render_panel, save_rgb_png
     from gsjax.raster import render
 
     total = len(outputs["w2c"])
-    frames = [t for t in range(total) if t == 0 or (t + 1) % options.eval_every == 0]
+    frames = [t for t in range(total) if (t == 0 or (t + 1) % options.eval_every == 0) and not outputs["skipped"][t]]
+    if not frames:
+        return dict(frames=[], mean=None, per_frame=[])
     samples = set(np.unique(np.linspace(0, len(frames) - 1, min(options.samples, len(frames))).round().astype(int)))
     render_fn = jax.jit(lambda g, w: render(g, w, sequence.intrinsics, config.raster))
     per_frame = []
@@ -353,9 +429,14 @@ def summary_lines(metrics: dict, out: Path) -> list[str]:
         lines.append(f"ATE RMSE (camera centres) {traj['ate_rmse_c2w_cm']:.2f} cm; SplaTAM's mean-of-w2c ATE "
                      f"{traj['ate_splatam_mean_w2c_cm']:.2f} cm; constant pose {metrics['constant_pose_ate_rmse_c2w_cm']:.2f} cm")
     render_mean = metrics["render"]["mean"]
-    lines.append(f"PSNR {render_mean['psnr_db']:.2f} dB, MS-SSIM {render_mean['ms_ssim']:.3f} "
-                 f"({int(render_mean['ms_ssim_scales'])} scales), SSIM {render_mean['ssim']:.3f}, depth L1 "
-                 f"{render_mean['depth_l1_cm']:.2f} cm on {len(metrics['render']['frames'])} frames")
+    if render_mean is None:
+        lines.append("no render metrics: no evaluation frame has usable depth")
+    else:
+        lines.append(f"PSNR {render_mean['psnr_db']:.2f} dB, MS-SSIM {render_mean['ms_ssim']:.3f} "
+                     f"({int(render_mean['ms_ssim_scales'])} scales), SSIM {render_mean['ssim']:.3f}, depth L1 "
+                     f"{render_mean['depth_l1_cm']:.2f} cm on {len(metrics['render']['frames'])} frames")
+    if metrics["warnings"]:
+        lines.append(f"{len(metrics['warnings'])} warning(s), listed in metrics.json")
     if metrics["frames_per_s"]:
         lines.append(f"{metrics['frames']} frames, {metrics['seconds_per_frame']:.2f} s/frame, "
                      f"{metrics['num_gaussians']} Gaussians")

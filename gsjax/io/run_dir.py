@@ -1,0 +1,70 @@
+"""The output directory of a run: what gsjax writes there, and when a directory may be (re)used.
+
+A run never loses what a user already has: a directory holding a previous run is used only to continue it
+(``--resume``) or to replace it (``--overwrite``, which removes gsjax's own outputs only), and a non-empty directory
+holding anything else is never used. The checks write nothing, so a refused run leaves every byte as it was.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+# Every file and folder a run writes directly under its directory.
+RUN_OUTPUTS = ("config.json", "checkpoints", "trajectory.txt", "metrics.json", "trajectory.png", "renders",
+               "map.ply", "report.html")
+
+
+class RunDirError(ValueError):
+    """The output directory cannot be used as asked; the message says why and what to do."""
+
+
+def previous_outputs(out: Path) -> list[str]:
+    """The names of gsjax outputs present in ``out`` (empty when it is missing or holds none)."""
+    return [name for name in RUN_OUTPUTS if (Path(out) / name).exists()] if Path(out).is_dir() else []
+
+
+def check_run_dir(out: Path, *, resume: bool = False, overwrite: bool = False) -> None:
+    """Raise RunDirError (naming ``--out``) unless a run may write to ``out``; writes nothing.
+
+    Usable: a missing directory whose nearest existing parent is a writable directory; an empty writable
+    directory; a directory holding a previous run when ``resume`` or ``overwrite`` is given.
+    """
+    out = Path(out)
+    if resume and overwrite:
+        raise RunDirError("--resume and --overwrite exclude each other: continue the run in --out, or replace it")
+    if out.exists() and not out.is_dir():
+        raise RunDirError(f"--out {out} is an existing file, not a directory; choose a directory")
+    if not out.exists():
+        parent = out.parent
+        while not parent.exists():
+            parent = parent.parent
+        if not parent.is_dir():
+            raise RunDirError(f"--out {out} cannot be created: {parent} is a file, not a directory")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise RunDirError(f"--out {out} cannot be created: {parent} is not writable")
+        return
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise RunDirError(f"--out {out} is not writable")
+    present = previous_outputs(out)
+    if present:
+        if not (resume or overwrite):
+            listed = ", ".join(name + ("/" if (out / name).is_dir() else "") for name in present)
+            raise RunDirError(f"--out {out} holds a previous run ({listed}); nothing was changed: pass --resume to "
+                              "continue it, --overwrite to replace it, or choose another --out")
+        return
+    if any(out.iterdir()):
+        raise RunDirError(f"--out {out} is not empty and holds no gsjax run; choose a new or empty directory")
+
+
+def clear_previous_run(out: Path) -> list[str]:
+    """Remove gsjax's own outputs from ``out`` (``--overwrite``); other files stay. Returns the names removed."""
+    removed = previous_outputs(out)
+    for name in removed:
+        path = Path(out) / name
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+    return removed
