@@ -1,7 +1,29 @@
-"""gsjax: dense RGB-D SLAM with 3D Gaussian Splatting and adaptive kernel smoothing (CB-KNN), in pure JAX."""
+"""gsjax: dense RGB-D SLAM with 3D Gaussian Splatting and adaptive kernel smoothing (CB-KNN), in pure JAX.
+
+The names most users need, flat (the SLAM system is :mod:`gsjax.slam`)::
+
+    import gsjax
+    out = gsjax.render(gaussians, w2c, intrinsics, gsjax.RasterSettings(), cbknn=gsjax.CBKNN(alpha=0.2))
+    sequence = gsjax.open_sequence("tum", "my_room", intrinsics=(525.0, 525.0, 319.5, 239.5))
+"""
 
 from gsjax.camera import Intrinsics, make_intrinsics
+from gsjax.data import DatasetError, DatasetWarning, Frame, Sequence, open_sequence
 from gsjax.gaussians import Gaussians
+from gsjax.raster import RasterSettings, render
+from gsjax.raster.cbknn import CBKNN
 
-__all__ = ["Gaussians", "Intrinsics", "make_intrinsics"]
+__all__ = [
+    "CBKNN",
+    "DatasetError",
+    "DatasetWarning",
+    "Frame",
+    "Gaussians",
+    "Intrinsics",
+    "RasterSettings",
+    "Sequence",
+    "make_intrinsics",
+    "open_sequence",
+    "render",
+]
 __version__ = "0.1.0"

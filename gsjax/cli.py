@@ -14,6 +14,8 @@ import sys
 import warnings
 from pathlib import Path
 
+from gsjax.names import CBKNN_MODES, DATASETS, PRESETS
+
 
 class UserError(Exception):
     """An error caused by the user's input; printed without a traceback."""
@@ -47,8 +49,6 @@ def _dataset_warnings(open_fn):
     return result, messages
 
 
-# The layouts gsjax.data.open_sequence reads (gsjax.data.READERS; not imported here, to keep --help fast).
-DATASETS = ("tum", "replica", "scannet", "7scenes")
 
 
 # Options every subcommand takes.
@@ -169,8 +169,6 @@ def _cmd_synth(args) -> int:
     return 0
 
 
-PRESETS = ("cpu", "replica", "tum", "scannet")
-CBKNN_MODES = ("off", "code_parity", "paper")
 SYNTHETIC_FRAMES = 30  # frames of `gsjax run --dataset synthetic` unless --max-frames says otherwise
 
 
@@ -302,8 +300,10 @@ def _cmd_run(args) -> int:
     import logging
 
     from gsjax.io.run_dir import check_run_dir
-    from gsjax.runner import RunOptions, run_slam, summary_lines
-    from gsjax.slam.config import apply_overrides, preset, with_cbknn_mode
+    from gsjax.run_outputs import summary_lines
+    from gsjax.runner import RunOptions, run_slam
+    from gsjax.config_text import apply_overrides
+    from gsjax.slam.presets import preset, with_cbknn_mode
 
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     logging.getLogger("gsjax").setLevel(logging.INFO)

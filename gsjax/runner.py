@@ -1,5 +1,5 @@
 """The imperative shell of ``gsjax run``: stream chunks of frames through the jitted SLAM scan, checkpoint,
-grow capacity, report progress, and write the outputs.
+grow capacity, report progress; then :mod:`gsjax.run_outputs` evaluates and writes the outputs.
 
 The pure core is :func:`gsjax.slam.system.run_chunk`. Between chunks this module:
 
@@ -7,11 +7,6 @@ The pure core is :func:`gsjax.slam.system.run_chunk`. Between chunks this module
 * grows the map capacity (doubling, logged) when a chunk could not insert every new Gaussian, and re-runs that
   chunk from its saved starting state, so no Gaussian is ever dropped;
 * shows a progress bar (frame, tracking loss, Gaussians, ATE so far when ground truth exists, frames/s).
-
-At the end it evaluates the trajectory (both ATE variants, RPE) against every frame with a valid ground-truth
-pose, renders the evaluation frames with the final map (canonical rendering) for PSNR / MS-SSIM / depth L1, and
-writes ``trajectory.txt``, ``metrics.json``, ``trajectory.png``, ``renders/``, ``map.ply`` and ``config.json``
-atomically.
 
 Ground truth is for evaluation only: the frames reach the SLAM core with their GT pose blanked
 (:func:`gsjax.data.frame.without_ground_truth`). What the run handles in a defined way but a user should know
@@ -33,12 +28,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.camera import Intrinsics
+from gsjax.config_text import config_to_dict
 from gsjax.data.frame import Frame, stack_frames, to_device, without_ground_truth
 from gsjax.data.sequence import Sequence
+from gsjax.io.atomic import atomic_write_json
 from gsjax.io.run_dir import check_run_dir, clear_previous_run
-from gsjax.slam.config import SlamConfig, config_to_dict
-from gsjax.slam.state import SlamState, grow_capacity, initial_state, keyframe_capacity_for
+from gsjax.run_outputs import write_outputs
+from gsjax.slam.config import SlamConfig
+from gsjax.slam.state import grow_capacity, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs, run_chunk
 
 log = logging.getLogger("gsjax")
@@ -231,7 +228,7 @@ def run_slam(
         timings, first_chunk_s = meta["timings"], meta["first_chunk_s"]  # timings cover the whole run
         frame_warnings, units_checked = meta["warnings"], meta["depth_units_checked"]
         log.info("resumed from checkpoint at frame %d (capacity %d)", done, capacity)
-    _write_json(out / "config.json", record)
+    atomic_write_json(out / "config.json", record)
 
     _, gt_c2w, gt_valid = sequence.gt_trajectory()
     progress = _Progress(total, done, options.progress)
@@ -299,7 +296,7 @@ def run_slam(
         checkpoints.close()
 
     timings["compile_s_estimate"] = _compile_estimate(first_chunk_s, timings["slam_s"], total, options.chunk)
-    return _finish(sequence, config, options, state, outputs, timings, record, [*input_warnings, *frame_warnings])
+    return write_outputs(sequence, config, options, state, outputs, timings, record, [*input_warnings, *frame_warnings])
 
 
 def _resume_key(record: dict) -> dict:
@@ -322,125 +319,3 @@ def _compile_estimate(first_chunk_s, slam_s, total, chunk) -> float | None:
         return None
     steady = (slam_s - first_chunk_s) / (chunks - 1)
     return max(0.0, first_chunk_s - steady)
-
-
-# --------------------------------------------------------------------------------------------- the outputs
-
-
-def _write_json(path: Path, obj) -> None:
-    from gsjax.io.atomic import atomic_write_json
-
-    atomic_write_json(path, obj)
-
-
-def _finish(sequence, config, options, state: SlamState, outputs: dict, timings: dict, record: dict,
-            warnings: list[str]) -> dict:
-    from gsjax.eval.trajectory import ate_rmse_c2w, evaluate_trajectory
-    from gsjax.io.ply import write_ply
-    from gsjax.io.plots import plot_trajectory_top_view
-    from gsjax.io.trajectory import write_tum_trajectory
-
-    out = Path(options.out)
-    t0 = time.perf_counter()
-    timestamps, gt_c2w, gt_valid = sequence.gt_trajectory()
-    est_c2w = np.linalg.inv(np.asarray(outputs["w2c"], np.float64))
-    # Express the estimate in the dataset's world frame when frame 0 has ground truth (so its numbers can be
-    # compared with the dataset's files directly); the SLAM world frame is the first camera.
-    anchor = gt_c2w[0] if gt_valid[0] else np.eye(4)
-    est_world = anchor @ est_c2w
-    write_tum_trajectory(out / "trajectory.txt", timestamps, est_world)
-
-    metrics: dict = dict(dataset=record.get("dataset"), frames=len(est_c2w), width=record["width"],
-                         height=record["height"])
-    # Every frame with a valid GT pose is evaluated; the rigid alignment absorbs the world frames (the SLAM one is
-    # the first camera), so frame 0 needs no ground truth.
-    if gt_valid.sum() >= 3:
-        traj = evaluate_trajectory(timestamps, est_c2w, timestamps, gt_c2w, gt_valid=gt_valid)
-        metrics["trajectory"] = traj
-        identity = np.broadcast_to(np.eye(4), est_c2w.shape).copy()
-        metrics["constant_pose_ate_rmse_c2w_cm"] = 100 * ate_rmse_c2w(identity, gt_c2w, gt_valid).value_m
-        aligned = ate_rmse_c2w(est_c2w, gt_c2w, gt_valid)
-        plot_trajectory_top_view(out / "trajectory.png", aligned.alignment.apply_points(est_c2w[aligned.used, :3, 3]),
-                                 gt_c2w[aligned.used, :3, 3],
-                                 title=f"{sequence.name}: ATE RMSE {100 * aligned.value_m:.2f} cm")
-    else:
-        metrics["trajectory"] = None
-        plot_trajectory_top_view(out / "trajectory.png", est_c2w[:, :3, 3], None,
-                                 title=f"{sequence.name} (no ground truth)")
-    metrics["render"] = _render_metrics(sequence, config, options, state, outputs)
-    write_ply(out / "map.ply", state.gaussians)
-    timings["outputs_s"] = time.perf_counter() - t0
-    slam_frames_per_s = len(est_c2w) / timings["slam_s"] if timings["slam_s"] > 0 else None
-    metrics.update(
-        frames_per_s=slam_frames_per_s,
-        seconds_per_frame=(1.0 / slam_frames_per_s) if slam_frames_per_s else None,
-        stage_timings_s=timings,
-        num_gaussians=int(state.gaussians.num_active()),
-        capacity=int(state.gaussians.capacity),
-        keyframes=int(state.keyframes.count),
-        nonfinite_tracking_iterations=int(state.nonfinite_tracking),
-        nonfinite_mapping_iterations=int(state.nonfinite_mapping),
-        frames_with_truncated_render=int(np.sum(outputs["truncated"])),
-        max_truncation_residual=float(np.max(outputs["residual"])),
-        skipped_frames=[int(t) for t in np.flatnonzero(outputs["skipped"])],
-        warnings=list(warnings),
-        camera=record["camera"],
-        config=record["config"],
-    )
-    _write_json(out / "metrics.json", metrics)
-    return metrics
-
-
-def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: SlamState, outputs: dict) -> dict:
-    """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0, except frames
-    skipped for lack of depth: the final map rendered canonically at the estimated poses, compared with the input
-    (masked by valid depth). ``mean`` is None when no frame is left."""
-    from gsjax.eval.image import render_metrics_splatam
-    from gsjax.io.images import render_panel, save_rgb_png
-    from gsjax.raster import render
-
-    total = len(outputs["w2c"])
-    frames = [t for t in range(total) if (t == 0 or (t + 1) % options.eval_every == 0) and not outputs["skipped"][t]]
-    if not frames:
-        return dict(frames=[], mean=None, per_frame=[])
-    samples = set(np.unique(np.linspace(0, len(frames) - 1, min(options.samples, len(frames))).round().astype(int)))
-    render_fn = jax.jit(lambda g, w: render(g, w, sequence.intrinsics, config.raster))
-    per_frame = []
-    (Path(options.out) / "renders").mkdir(parents=True, exist_ok=True)
-    for position, t in enumerate(frames):
-        frame = sequence.read_host(t)
-        out = render_fn(state.gaussians, jnp.asarray(outputs["w2c"][t], jnp.float32))
-        values = render_metrics_splatam(out.color, out.depth, jnp.asarray(frame.color), jnp.asarray(frame.depth))
-        per_frame.append({k: float(v) for k, v in values.items()})
-        if position in samples:
-            panel = render_panel(np.asarray(out.color), frame.color, np.asarray(out.depth), frame.depth)
-            zoom = max(1, 320 // panel.shape[1])  # small (cpu-preset) images: nearest-neighbour enlarged to view
-            panel = np.repeat(np.repeat(panel, zoom, axis=0), zoom, axis=1)
-            save_rgb_png(Path(options.out) / "renders" / f"frame_{t:06d}.png", panel)
-    mean = {k: float(np.mean([p[k] for p in per_frame])) for k in per_frame[0]}
-    return dict(frames=frames, mean=dict(mean, depth_l1_cm=100 * mean["depth_l1_m"]), per_frame=per_frame)
-
-
-def summary_lines(metrics: dict, out: Path) -> list[str]:
-    """A short human summary of a finished run."""
-    lines = []
-    traj = metrics.get("trajectory")
-    if traj:
-        lines.append(f"ATE RMSE (camera centres) {traj['ate_rmse_c2w_cm']:.2f} cm; SplaTAM's mean-of-w2c ATE "
-                     f"{traj['ate_splatam_mean_w2c_cm']:.2f} cm; constant pose {metrics['constant_pose_ate_rmse_c2w_cm']:.2f} cm")
-    render_mean = metrics["render"]["mean"]
-    if render_mean is None:
-        lines.append("no render metrics: no evaluation frame has usable depth")
-    else:
-        lines.append(f"PSNR {render_mean['psnr_db']:.2f} dB, MS-SSIM {render_mean['ms_ssim']:.3f} "
-                     f"({int(render_mean['ms_ssim_scales'])} scales), SSIM {render_mean['ssim']:.3f}, depth L1 "
-                     f"{render_mean['depth_l1_cm']:.2f} cm on {len(metrics['render']['frames'])} frames")
-    if metrics["warnings"]:
-        lines.append(f"{len(metrics['warnings'])} warning(s), listed in metrics.json")
-    if metrics["frames_per_s"]:
-        lines.append(f"{metrics['frames']} frames, {metrics['seconds_per_frame']:.2f} s/frame, "
-                     f"{metrics['num_gaussians']} Gaussians")
-    lines.append(f"outputs in {Path(out).resolve()}: trajectory.txt metrics.json trajectory.png renders/ map.ply "
-                 "config.json checkpoints/")
-    return lines
-

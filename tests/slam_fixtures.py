@@ -18,7 +18,9 @@ import numpy as np
 from gsjax.data.frame import Frame, stack_frames, to_device
 from gsjax.data.sequence import Sequence
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
-from gsjax.slam.config import SlamConfig, apply_overrides, preset, with_cbknn_mode
+from gsjax.config_text import apply_overrides
+from gsjax.slam.config import SlamConfig
+from gsjax.slam.presets import preset, with_cbknn_mode
 from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
 
 WIDTH, HEIGHT = 40, 30  # = the default synthetic 160x120 with `gsjax run --downscale 4`
@@ -116,14 +118,14 @@ def first_frame_map():
     return gaussians_from_rgbd(frame.color, frame.depth, tiny_sequence().intrinsics, jnp.eye(4, dtype=jnp.float32))
 
 
-def window_views(frame_ids=MAP_VIEWS):
-    """:class:`gsjax.slam.mapping.Views` of the given frames at their GT poses (all keyframes, all valid)."""
-    from gsjax.slam.mapping import Views
+def window_frames(frame_ids=MAP_VIEWS):
+    """:class:`gsjax.slam.mapping.WindowFrames` of the given frames at their GT poses (all keyframes, all valid)."""
+    from gsjax.slam.mapping import WindowFrames
 
     chunk = frames(0, FRAMES)
     ids = np.asarray(frame_ids)
     count = len(ids)
-    return Views(color=chunk.color[ids], depth=chunk.depth[ids],
+    return WindowFrames(color=chunk.color[ids], depth=chunk.depth[ids],
                  w2c=jnp.asarray(relative_gt_w2c()[ids], jnp.float32), gamma=jnp.zeros(count, jnp.float32),
                  keyframe=jnp.ones(count, bool), valid=jnp.ones(count, bool))
 
@@ -139,10 +141,10 @@ def _map_window_jit():
     return jax.jit(map_window)
 
 
-def run_map_window(gaussians, seed: int = 0, config: SlamConfig | None = None, first=False):
-    """``map_window`` over :func:`window_views` with :func:`map_config` (one compiled program for all callers that
+def run_map_window(gaussians, seed: int = 0, config: SlamConfig | None = None, first_map=False):
+    """``map_window`` over :func:`window_frames` with :func:`map_config` (one compiled program for all callers that
     keep the config's static fields)."""
     config = map_config() if config is None else config
-    return _map_window_jit()(jax.random.PRNGKey(seed), gaussians, window_views(), tiny_sequence().intrinsics, config,
-                             scene_radius(config), jnp.asarray(first))
+    return _map_window_jit()(jax.random.PRNGKey(seed), gaussians, window_frames(), tiny_sequence().intrinsics, config,
+                             scene_radius(config), jnp.asarray(first_map))
 

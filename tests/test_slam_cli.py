@@ -12,7 +12,7 @@ from gsjax.cli import main
 from gsjax.io.checkpoint import Checkpoints
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
-from gsjax.slam.config import config_to_dict
+from gsjax.config_text import config_to_dict
 from slam_fixtures import CHUNK, FRAMES, HEIGHT, TINY_OVERRIDES, WIDTH, tiny_config, tiny_sequence
 
 # --downscale 4 turns the default 160x120 synthetic room into 40x30; with these options the CLI builds exactly the

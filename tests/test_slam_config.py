@@ -8,15 +8,10 @@ import json
 import jax
 import pytest
 
-from gsjax.slam.config import (
-    PRESETS,
-    SlamConfig,
-    apply_overrides,
-    config_from_dict,
-    config_to_dict,
-    preset,
-    with_cbknn_mode,
-)
+from gsjax.config_text import apply_overrides, config_from_dict, config_to_dict
+from gsjax.names import PRESETS
+from gsjax.slam.config import SlamConfig
+from gsjax.slam.presets import preset, with_cbknn_mode
 
 
 @pytest.mark.parametrize("name", PRESETS)

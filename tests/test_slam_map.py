@@ -12,7 +12,7 @@ import pytest
 from gsjax.camera import se3_inverse
 from gsjax.gaussians import Gaussians, gaussians_from_rgbd
 from gsjax.slam.densify import densify, insert, prune
-from gsjax.slam.config import apply_overrides
+from gsjax.config_text import apply_overrides
 from gsjax.slam.losses import mapping_loss
 from gsjax.slam.state import grow_capacity
 from gsjax.slam.views import render_view
@@ -25,7 +25,7 @@ from slam_fixtures import (
     run_map_window,
     scene_radius,
     tiny_sequence,
-    window_views,
+    window_frames,
 )
 
 FIELDS = ("means", "log_scales", "logit_opacities", "rgb")
@@ -36,8 +36,8 @@ def with_active(gaussians: Gaussians, active) -> Gaussians:
 
 
 def window_losses(gaussians):
-    """The mapping loss of each view of :func:`window_views` (canonical renders)."""
-    config, views = map_config(), window_views()
+    """The mapping loss of each view of :func:`window_frames` (canonical renders)."""
+    config, views = map_config(), window_frames()
     m = config.mapping
     return np.array([
         float(mapping_loss(render_view(gaussians, views.w2c[i], tiny_sequence().intrinsics, config, False, 0.0),
@@ -110,7 +110,7 @@ def test_frame_zero_moves_the_means_with_its_own_step_size():
     other fields' steps are unchanged by ``first``."""
     config = apply_overrides(map_config(), {"mapping.lr_means": "0", "mapping.lr_means_first": "1e-3"})
     start = first_frame_map()
-    later, first = run_map_window(start, config=config, first=False), run_map_window(start, config=config, first=True)
+    later, first = run_map_window(start, config=config, first_map=False), run_map_window(start, config=config, first_map=True)
     np.testing.assert_array_equal(np.asarray(later.gaussians.means), np.asarray(start.means))
     moved = np.abs(np.asarray(first.gaussians.means) - np.asarray(start.means))[np.asarray(start.active)]
     assert moved.max() > 1e-3  # up to 30 steps of 1e-3 m

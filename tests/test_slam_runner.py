@@ -13,7 +13,7 @@ from gsjax.io.checkpoint import Checkpoints
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
 from gsjax.runner import RunOptions, run_slam
-from gsjax.slam.config import apply_overrides
+from gsjax.config_text import apply_overrides
 from slam_fixtures import CAPACITY, CHUNK, FRAMES, tiny_config, tiny_sequence
 
 OUTPUTS = ("trajectory.txt", "map.ply")

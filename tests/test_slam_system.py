@@ -15,7 +15,7 @@ import pytest
 
 from gsjax.camera import constant_velocity, orthonormalize
 from gsjax.data.frame import without_ground_truth
-from gsjax.slam.config import apply_overrides
+from gsjax.config_text import apply_overrides
 from gsjax.slam.system import run_chunk
 from slam_fixtures import (
     CHUNK,

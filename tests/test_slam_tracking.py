@@ -12,7 +12,8 @@ import pytest
 
 from gsjax.camera import se3_exp, se3_log
 from gsjax.raster import render
-from gsjax.slam.config import apply_overrides, with_cbknn_mode
+from gsjax.config_text import apply_overrides
+from gsjax.slam.presets import with_cbknn_mode
 from gsjax.slam.losses import rendered_depth, tracking_loss
 from gsjax.slam.tracking import _track_adam, track
 from gsjax.slam.views import render_view

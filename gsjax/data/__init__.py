@@ -26,6 +26,7 @@ from gsjax.data.sevenscenes import list_sevenscenes
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.data.tum import list_tum, write_tum
 
+# One reader per name of gsjax.names.DATASETS (tests check the two agree).
 READERS = {"tum": list_tum, "replica": list_replica, "scannet": list_scannet, "7scenes": list_sevenscenes}
 
 

@@ -1,25 +1,23 @@
-"""SLAM configuration: frozen dataclass pytrees with presets, and command-line overrides by field name.
+"""SLAM configuration: frozen dataclass pytrees, validated when built.
 
 Hyperparameters that users sweep (learning rates, loss weights, thresholds, CB-KNN alpha/K0/beta) are *traced*
 leaves, so ``jax.vmap`` over a batch of configs runs one compiled program; iteration counts, window sizes, modes
-and flags are *static* (they set shapes or control flow). Presets ``replica``, ``tum`` and ``scannet`` hold
-SplaTAM's per-dataset values (method_spec A.11) and the paper's CB-KNN K0 (D.6); ``cpu`` is sized for 2 CPU cores.
+and flags are *static* (they set shapes or control flow). The named presets are in :mod:`gsjax.slam.presets`;
+overrides by dotted field name and the JSON round trip in :mod:`gsjax.config_text`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import typing
 
 import jax
 import numpy as np
 
 from gsjax.checks import is_checkable
+from gsjax.names import CBKNN_MODES
 from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
-
-CBKNN_MODES = ("off", "code_parity", "paper")
 SLAM_MAX_CONTRIBUTORS = 96
 TRACKING_OPTIMIZERS = ("adam", "lm")
 BEST_POSE = ("pre_step", "post_step")
@@ -225,7 +223,7 @@ class SlamConfig:
       raster: rasterizer settings. SLAM maps carry many young, semi-transparent Gaussians (opacity 0.5 at
         birth), so the SLAM default keeps 96 slots per pixel (the rasterizer's own default, 64, fits converged
         SplaTAM-density maps). Close-up views still exceed it at a few pixels (7-Scenes kitchen: up to ~150
-        contributors); that is reported per frame (``residual``: at most 0.41 over the 150-frame run, so a cut
+        contributors); that is reported per frame (``truncation_residual``: at most 0.41 over the 150-frame run, so a cut
         pixel's silhouette stays above the densification threshold); 128 slots moved the 150-frame ATE by 0.13 cm.
       keyframe_every: a keyframe every this many frames (plus frame 0 and the second-to-last frame).
       scene_radius_depth_ratio: scene radius = max depth of frame 0 / this (used by pruning).
@@ -254,141 +252,3 @@ class SlamConfig:
                 f"cbknn.params.k_max ({self.cbknn.params.k_max}) exceeds raster.max_contributors "
                 f"({self.raster.max_contributors})"
             )
-
-
-def _cbknn_values(k0: float) -> CBKNNConfig:
-    """The paper's CB-KNN values for a dataset (alpha 0.2 px, beta 0.3, its K0); the mode stays ``off`` until
-    chosen (``gsjax run --cbknn``, :func:`with_cbknn_mode`)."""
-    return CBKNNConfig(mode="off", params=CBKNN(alpha=0.2, k0=k0, beta=0.3))
-
-
-def preset(name: str) -> SlamConfig:
-    """A named preset: ``replica``, ``tum``, ``scannet`` (SplaTAM / paper values) or ``cpu`` (2 CPU cores)."""
-    # SplaTAM's rotation learning rates act on quaternions; phi moves about twice as fast (see TrackingConfig).
-    if name == "replica":
-        return SlamConfig(
-            tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=8e-4),
-            mapping=MappingConfig(iters=60, window_size=24),
-            cbknn=_cbknn_values(5.0),
-            scene_radius_depth_ratio=3.0,
-        )
-    if name == "tum":
-        return SlamConfig(
-            tracking=TrackingConfig(iters=200, lr_trans=2e-3, lr_rot=4e-3),
-            mapping=MappingConfig(iters=30, window_size=20),
-            cbknn=_cbknn_values(8.0),
-            scene_radius_depth_ratio=2.0,
-        )
-    if name == "scannet":
-        return SlamConfig(
-            tracking=TrackingConfig(iters=100, lr_trans=5e-4, lr_rot=1e-3),
-            mapping=MappingConfig(iters=30, window_size=10),
-            cbknn=_cbknn_values(8.0),
-            scene_radius_depth_ratio=3.0,
-        )
-    if name == "cpu":
-        # About 80x60 input (see the runner's downscale). Tracking compares D / S (young maps have S < 1, and
-        # D = sum w z would pull the camera along its axis). The means keep SplaTAM's step (1e-4) after frame 0: a
-        # larger one lets each frame's map update absorb that frame's tracking error, which then accumulates
-        # (7-Scenes kitchen, 150 frames: 1e-3 -> 2.9 cm ATE, 3e-4 -> 2.5 cm, 1e-4 -> 2.0 cm; noisy synthetic,
-        # 60 frames: 0.42 -> 0.34 cm). Frame 0's map takes 1e-3 to remove the blending depth bias of fresh
-        # Gaussians, which at ~8x a full-resolution pixel is centimetres (Replica sample, 80x45: 2.2 cm ATE with
-        # 1e-4 on frame 0 too, no better than a constant pose).
-        return SlamConfig(
-            tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=2e-3, normalized_depth=True),
-            mapping=MappingConfig(iters=30, window_size=10, lr_means_first=1e-3, overlap_samples=800,
-                                  overlap_margin=2.5),
-            cbknn=_cbknn_values(8.0),
-            scene_radius_depth_ratio=2.0,
-        )
-    raise ValueError(f"unknown preset {name!r} (replica, tum, scannet, cpu)")
-
-
-PRESETS = ("replica", "tum", "scannet", "cpu")
-
-
-def with_cbknn_mode(config: SlamConfig, mode: str) -> SlamConfig:
-    """The config with CB-KNN switched to ``mode`` (``off``, ``code_parity``, ``paper``)."""
-    return dataclasses.replace(config, cbknn=dataclasses.replace(config.cbknn, mode=mode))
-
-
-# ------------------------------------------------------------------------------------------ overrides by name
-
-
-def _convert(text: str, current, path: str):
-    """Parse ``text`` as the type of the field's current value."""
-    try:
-        if isinstance(current, bool):
-            if text.lower() in ("1", "true", "yes", "on"):
-                return True
-            if text.lower() in ("0", "false", "no", "off"):
-                return False
-            raise ValueError
-        if isinstance(current, (int, np.integer)):
-            return int(text)
-        if isinstance(current, (float, np.floating)):
-            return float(text)
-        if isinstance(current, tuple):
-            return tuple(int(x) for x in text.split(",") if x.strip())
-        if isinstance(current, str):
-            return text
-    except ValueError:
-        pass
-    raise ValueError(f"--{path}: cannot read {text!r} as {type(current).__name__}")
-
-
-def apply_overrides(config, overrides: dict[str, str]):
-    """A copy of ``config`` with dotted field names set from strings, e.g. ``{"tracking.iters": "60"}``.
-
-    Raises ValueError naming the field for unknown names and unreadable or invalid values.
-    """
-    for path, text in overrides.items():
-        config = _set_path(config, path.split("."), text, path)
-    return config
-
-
-def _set_path(obj, parts: list[str], text: str, path: str):
-    if not dataclasses.is_dataclass(obj):
-        raise ValueError(f"--{path}: {parts[0]!r} is not a config section")
-    names = {f.name for f in dataclasses.fields(obj)}
-    if parts[0] not in names:
-        raise ValueError(f"--{path}: unknown field {parts[0]!r} (fields: {', '.join(sorted(names))})")
-    current = getattr(obj, parts[0])
-    value = _set_path(current, parts[1:], text, path) if len(parts) > 1 else _convert(text, current, path)
-    try:
-        return dataclasses.replace(obj, **{parts[0]: value})
-    except ValueError as err:
-        raise ValueError(f"--{path}: {err}") from None
-
-
-def config_to_dict(config) -> dict:
-    """A JSON-friendly nested dict of a config (for ``config.json``)."""
-    out = {}
-    for field in dataclasses.fields(config):
-        value = getattr(config, field.name)
-        if dataclasses.is_dataclass(value):
-            out[field.name] = config_to_dict(value)
-        elif isinstance(value, tuple):
-            out[field.name] = list(value)
-        else:
-            arr = np.asarray(value)
-            out[field.name] = arr.item() if arr.ndim == 0 else arr.tolist()
-    return out
-
-
-def config_from_dict(data: dict, base=None):
-    """Inverse of :func:`config_to_dict` (unknown keys are errors)."""
-    base = SlamConfig() if base is None else base
-    kwargs = {}
-    hints = typing.get_type_hints(type(base))
-    for key, value in data.items():
-        if key not in hints:
-            raise ValueError(f"config: unknown field {key!r}")
-        current = getattr(base, key)
-        if dataclasses.is_dataclass(current):
-            kwargs[key] = config_from_dict(value, current)
-        elif isinstance(current, tuple):
-            kwargs[key] = tuple(value)
-        else:
-            kwargs[key] = value
-    return dataclasses.replace(base, **kwargs)

@@ -10,10 +10,10 @@ import jax.numpy as jnp
 from gsjax.camera import Intrinsics, se3_inverse
 from gsjax.gaussians import Gaussians, gaussians_from_rgbd
 from gsjax.slam.config import DensifyConfig, MappingConfig
-from gsjax.slam.views import View
+from gsjax.slam.views import RenderedView
 
 
-def densify_mask(view: View, depth_gt: jax.Array, config: DensifyConfig) -> jax.Array:
+def densify_mask(view: RenderedView, depth_gt: jax.Array, config: DensifyConfig) -> jax.Array:
     """[H, W] bool: where to add Gaussians.
 
     ``(S < sil_threshold) | ((D > D_gt) & (E > factor * median(E)))`` with ``E = |D_gt - D| [D_gt > 0]`` (the median
@@ -68,7 +68,7 @@ def insert(gaussians: Gaussians, new: Gaussians) -> Insertion:
 
 def densify(
     gaussians: Gaussians,
-    view: View,
+    view: RenderedView,
     color: jax.Array,
     depth: jax.Array,
     w2c: jax.Array,

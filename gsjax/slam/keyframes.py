@@ -7,7 +7,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from gsjax.camera import Intrinsics, backproject, se3_inverse
+from gsjax.camera import Intrinsics, backproject, project_points, se3_inverse
 from gsjax.slam.config import CBKNNConfig, MappingConfig
 from gsjax.slam.state import KeyframeBuffer
 
@@ -66,9 +66,8 @@ def overlap_fractions(points: jax.Array, keyframes: KeyframeBuffer, intrinsics: 
     """[F] fraction of the world points that project inside each keyframe (``margin`` px from the border, z > 0)."""
     cam = jnp.einsum("fij,nj->fni", keyframes.w2c[:, :3, :3], points) + keyframes.w2c[:, None, :3, 3]
     z = cam[..., 2]
-    z_safe = jnp.where(z > 0, z, 1.0)
-    u = intrinsics.fx * cam[..., 0] / z_safe + intrinsics.cx
-    v = intrinsics.fy * cam[..., 1] / z_safe + intrinsics.cy
+    uv = project_points(cam.at[..., 2].set(jnp.where(z > 0, z, 1.0)), intrinsics)
+    u, v = uv[..., 0], uv[..., 1]
     inside = (z > 0) & (u > margin) & (u < intrinsics.width - margin) & (v > margin) & (v < intrinsics.height - margin)
     return jnp.mean(inside, axis=-1)
 

@@ -1,4 +1,4 @@
-"""Tracking and mapping losses (method_spec A.6.3, A.9), on :class:`gsjax.slam.views.View` renders."""
+"""Tracking and mapping losses (method_spec A.6.3, A.9), on :class:`gsjax.slam.views.RenderedView` renders."""
 
 from __future__ import annotations
 
@@ -6,16 +6,16 @@ import jax
 import jax.numpy as jnp
 
 from gsjax.eval.image import ssim_splatam
-from gsjax.slam.views import View
+from gsjax.slam.views import RenderedView
 
 
-def tracking_mask(view: View, depth_gt: jax.Array, sil_threshold) -> jax.Array:
+def tracking_mask(view: RenderedView, depth_gt: jax.Array, sil_threshold) -> jax.Array:
     """[H, W] bool: valid observed depth, finite rendered depth and variance, silhouette above the threshold."""
     variance = view.depth_sq - view.depth * view.depth
     return (depth_gt > 0) & jnp.isfinite(view.depth) & jnp.isfinite(variance) & (view.silhouette > sil_threshold)
 
 
-def rendered_depth(view: View, normalized: bool) -> jax.Array:
+def rendered_depth(view: RenderedView, normalized: bool) -> jax.Array:
     """SplaTAM's depth D = sum w z, or D / S (``normalized``; 0 where S = 0)."""
     if not normalized:
         return view.depth
@@ -24,7 +24,7 @@ def rendered_depth(view: View, normalized: bool) -> jax.Array:
 
 
 def tracking_loss(
-    view: View, color_gt, depth_gt, lambda_color, lambda_depth, sil_threshold, normalized_depth: bool = False
+    view: RenderedView, color_gt, depth_gt, lambda_color, lambda_depth, sil_threshold, normalized_depth: bool = False
 ) -> jax.Array:
     """SplaTAM's tracking loss: lambda_depth sum_M |D - D_gt| + lambda_color sum_M |C - C_gt| (sums, not means)."""
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
@@ -35,7 +35,7 @@ def tracking_loss(
 
 
 def tracking_residuals(
-    view: View, color_gt, depth_gt, lambda_color, lambda_depth, sil_threshold, normalized_depth: bool = False
+    view: RenderedView, color_gt, depth_gt, lambda_color, lambda_depth, sil_threshold, normalized_depth: bool = False
 ) -> jax.Array:
     """The same masked terms as a residual vector [H*W*4] for least squares (Gauss-Newton / LM)."""
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
@@ -45,7 +45,7 @@ def tracking_residuals(
     return jnp.concatenate([depth.reshape(-1), color.reshape(-1)])
 
 
-def mapping_loss(view: View, color_gt, depth_gt, lambda_color, lambda_depth, ssim_weight) -> jax.Array:
+def mapping_loss(view: RenderedView, color_gt, depth_gt, lambda_color, lambda_depth, ssim_weight) -> jax.Array:
     """SplaTAM's mapping loss: lambda_depth mean_{D_gt>0} |D - D_gt| + lambda_color ((1 - w) mean |C - C_gt| +
     w (1 - SSIM(C, C_gt))), colour over all pixels, SSIM zero-padded as in SplaTAM's training code."""
     valid = depth_gt > 0

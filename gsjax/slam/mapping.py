@@ -14,11 +14,12 @@ from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import prune
 from gsjax.slam.keyframes import CURRENT, Window
 from gsjax.slam.losses import mapping_loss
+from gsjax.slam.optimizers import MAP_PARAMS, finite_only_if_loss_is, map_optimizer, nonfinite_steps
 from gsjax.slam.state import KeyframeBuffer
 from gsjax.slam.views import render_view
 
 
-class Views(NamedTuple):
+class WindowFrames(NamedTuple):
     """The renderable views of a window: colour [V, H, W, 3], depth [V, H, W], w2c [V, 4, 4], gamma [V],
     keyframe [V] bool (renders smoothed in ``paper`` mode), valid [V] bool."""
 
@@ -30,7 +31,7 @@ class Views(NamedTuple):
     valid: jax.Array
 
 
-def window_views(window: Window, keyframes: KeyframeBuffer, color, depth, w2c, gamma, current_is_keyframe) -> Views:
+def gather_window_frames(window: Window, keyframes: KeyframeBuffer, color, depth, w2c, gamma, current_is_keyframe) -> WindowFrames:
     """Gather the window's views from the keyframe buffer and the current frame."""
     current = window.index == CURRENT
     slot = jnp.maximum(window.index, 0)
@@ -39,7 +40,7 @@ def window_views(window: Window, keyframes: KeyframeBuffer, color, depth, w2c, g
         mask = current.reshape(current.shape + (1,) * (stored.ndim - 1))
         return jnp.where(mask, now[None], stored[slot])
 
-    return Views(
+    return WindowFrames(
         color=pick(keyframes.color, color),
         depth=pick(keyframes.depth, depth),
         w2c=pick(keyframes.w2c, w2c),
@@ -58,20 +59,17 @@ class MapResult(NamedTuple):
     nonfinite: jax.Array
 
 
-_PARAMS = ("means", "rgb", "logit_opacities", "log_scales")
 
 
 def map_window(
-    key, gaussians: Gaussians, views: Views, intrinsics: Intrinsics, config: SlamConfig, scene_radius, first=False
+    key, gaussians: Gaussians, views: WindowFrames, intrinsics: Intrinsics, config: SlamConfig, scene_radius, first_map=False
 ) -> MapResult:
     """``config.mapping.iters`` iterations, each on one view drawn uniformly from the valid window entries;
-    pruning at ``prune_iters`` (after the gradient, before the step, as SplaTAM). ``first`` (traced bool): the
+    pruning at ``prune_iters`` (after the gradient, before the step, as SplaTAM). ``first_map`` (traced bool): the
     frame-0 map, whose means take the step ``lr_means_first``."""
     cfg = config.mapping
-    lr_means = jnp.where(first, cfg.lr_means_first, cfg.lr_means)
-    step_sizes = dict(means=lr_means, rgb=cfg.lr_rgb, logit_opacities=cfg.lr_opacity, log_scales=cfg.lr_scale)
-    adam = optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15)
-    params = {name: getattr(gaussians, name) for name in _PARAMS}
+    optimizer = map_optimizer(config, jnp.where(first_map, cfg.lr_means_first, cfg.lr_means))
+    params = {name: getattr(gaussians, name) for name in MAP_PARAMS}
     smooth_stage = config.cbknn.smooth_renders and config.cbknn.map_keyframes
     picks = jax.random.categorical(key, jnp.where(views.valid, 0.0, -jnp.inf), shape=(cfg.iters,))
 
@@ -83,29 +81,23 @@ def map_window(
                             cfg.lambda_depth, cfg.ssim_weight)
 
     def iteration(carry, inputs):
-        params, active, opt_state, nonfinite = carry
+        params, active, opt_state = carry
         it, view_index = inputs
         loss, grads = jax.value_and_grad(loss_fn)(params, active, view_index)
-        finite = jnp.isfinite(loss) & jnp.all(
-            jnp.stack([jnp.all(jnp.isfinite(jnp.where(active.reshape(active.shape + (1,) * (g.ndim - 1)), g, 0.0)))
-                       for g in grads.values()])
-        )
+        # Free slots render nothing; only the active entries' gradients decide whether the step is finite.
+        grads = {name: jnp.where(active.reshape(active.shape + (1,) * (g.ndim - 1)), g, 0.0)
+                 for name, g in grads.items()}
         at_prune = jnp.isin(it, jnp.asarray(cfg.prune_iters, jnp.int32)) if cfg.prune_iters else jnp.bool_(False)
         pruned = prune(Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"],
                                  active), cfg, scene_radius).active
         active = jnp.where(at_prune, pruned, active)
-        updates, new_opt_state = adam.update(grads, opt_state)
-        take_step = finite & (jnp.logical_not(at_prune) if cfg.skip_step_at_prune else jnp.bool_(True))
-        params = {
-            name: jnp.where(take_step, params[name] - step_sizes[name] * updates[name], params[name])
-            for name in _PARAMS
-        }
-        opt_state = jax.tree_util.tree_map(lambda n, o: jnp.where(take_step, n, o), new_opt_state, opt_state)
-        return (params, active, opt_state, nonfinite + (~finite).astype(jnp.int32)), loss
+        updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grads), opt_state)
+        return (optax.apply_updates(params, updates), active, opt_state), loss
 
-    init = (params, gaussians.active, adam.init(params), jnp.int32(0))
-    (params, active, _, nonfinite), losses = jax.lax.scan(
+    init = (params, gaussians.active, optimizer.init(params))
+    (params, active, opt_state), losses = jax.lax.scan(
         iteration, init, (jnp.arange(cfg.iters, dtype=jnp.int32), picks)
     )
+    nonfinite = nonfinite_steps(opt_state)
     out = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
     return MapResult(out, losses[-1], nonfinite)

@@ -29,7 +29,7 @@ from gsjax.raster.cbknn import motion_from_poses
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import densify
 from gsjax.slam.keyframes import select_window
-from gsjax.slam.mapping import map_window, window_views
+from gsjax.slam.mapping import map_window, gather_window_frames
 from gsjax.slam.state import SlamState
 from gsjax.slam.tracking import track
 from gsjax.slam.views import is_keyframe, render_view
@@ -43,7 +43,7 @@ class StepOutputs(NamedTuple):
       mapping_loss: [] last mapping iteration's loss; num_gaussians: [] active after the step;
       added, dropped: [] Gaussians densified / not inserted for lack of capacity; keyframe: [] bool;
       gamma: [] motion used by CB-KNN; nonfinite: [] skipped tracking iterations; truncated: [] bool, the
-      densification render was truncated by the rasterizer's capacities; residual: [] the largest
+      densification render was truncated by the rasterizer's capacities; truncation_residual: [] the largest
       transmittance that truncation left in that render; skipped: [] bool, the frame had too little valid depth
       and kept its predicted pose.
     """
@@ -58,7 +58,7 @@ class StepOutputs(NamedTuple):
     gamma: jax.Array
     nonfinite: jax.Array
     truncated: jax.Array
-    residual: jax.Array
+    truncation_residual: jax.Array
     skipped: jax.Array
 
 
@@ -87,7 +87,7 @@ def _coast(state: SlamState, config: SlamConfig) -> tuple[SlamState, StepOutputs
     outputs = StepOutputs(w2c=w2c, tracking_loss=zero, mapping_loss=zero, num_gaussians=state.gaussians.num_active(),
                           added=jnp.int32(0), dropped=jnp.int32(0), keyframe=jnp.bool_(False),
                           gamma=jnp.asarray(_motion(state, config), jnp.float32), nonfinite=jnp.int32(0),
-                          truncated=jnp.bool_(False), residual=zero, skipped=jnp.bool_(True))
+                          truncated=jnp.bool_(False), truncation_residual=zero, skipped=jnp.bool_(True))
     new_state = dataclasses.replace(state, w2c_prev1=w2c, w2c_prev2=state.w2c_prev1,
                                     key=jax.random.split(state.key, 3)[2], frame=state.frame + 1)
     return new_state, outputs
@@ -125,8 +125,8 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
     with jax.named_scope("map"):
         window = select_window(key_window, state.keyframes, frame.depth, w2c, intrinsics, config.mapping,
                                config.cbknn)
-        views = window_views(window, state.keyframes, frame.color, frame.depth, w2c, gamma, keyframe)
-        mapped = map_window(key_map, gaussians, views, intrinsics, config, scene_radius, first=~started)
+        views = gather_window_frames(window, state.keyframes, frame.color, frame.depth, w2c, gamma, keyframe)
+        mapped = map_window(key_map, gaussians, views, intrinsics, config, scene_radius, first_map=~started)
 
     keyframes = state.keyframes.push(frame.color, frame.depth, w2c, t, gamma, keyframe)
     new_state = dataclasses.replace(
@@ -153,7 +153,7 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         gamma=gamma,
         nonfinite=nonfinite,
         truncated=view.truncated,
-        residual=view.residual,
+        truncation_residual=view.truncation_residual,
         skipped=jnp.bool_(False),
     )
     return new_state, outputs

@@ -3,9 +3,9 @@
 The pose is ``w2c = exp(delta) @ w2c_init`` (left perturbation, delta = (rho, phi)), so the optimisation is
 unconstrained and exact on SE(3). Two optimisers:
 
-* ``adam`` (SplaTAM parity): a fresh Adam per frame with per-component step sizes (rho: ``lr_trans``, phi:
-  ``lr_rot``) on the summed L1 loss; the lowest-loss pose seen is kept. An iteration whose loss or gradient is
-  not finite takes no step and is counted.
+* ``adam`` (SplaTAM parity): a fresh Adam per frame (:func:`pose_optimizer`, optax) with per-component step
+  sizes (rho: ``lr_trans``, phi: ``lr_rot``) on the summed L1 loss; the lowest-loss pose seen is kept. An
+  iteration whose gradient is not finite takes no step and is counted.
 * ``lm``: Levenberg-Marquardt (optimistix) on the same masked residuals in least squares, with a forward-mode
   Jacobian through the renderer (6 columns); the result is kept only if its L1 tracking loss beats the start's.
 """
@@ -23,6 +23,7 @@ from gsjax.camera import Intrinsics, se3_exp
 from gsjax.gaussians import Gaussians
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.losses import tracking_loss, tracking_residuals
+from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
 from gsjax.slam.views import render_view
 
 
@@ -67,30 +68,23 @@ def track(
 
 def _track_adam(loss_fn, w2c_init, config: SlamConfig) -> TrackResult:
     cfg = config.tracking
-    step_size = jnp.concatenate([jnp.full(3, cfg.lr_trans), jnp.full(3, cfg.lr_rot)])
-    adam = optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-8)
-    delta0 = jnp.zeros(6, jnp.float32)
+    optimizer = pose_optimizer(config)
+    tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
+    delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
 
-    # Exponential decay from 1 to lr_final_ratio over the iterations (constant when the ratio is 1).
-    decay = jnp.power(cfg.lr_final_ratio, jnp.arange(cfg.iters, dtype=jnp.float32) / max(cfg.iters - 1, 1))
-
-    def iteration(carry, factor):
-        delta, opt_state, best_delta, best_loss, nonfinite = carry
-        loss, grad = jax.value_and_grad(loss_fn)(delta)
-        finite = jnp.isfinite(loss) & jnp.all(jnp.isfinite(grad))
-        updates, new_opt_state = adam.update(grad, opt_state)
-        new_delta = delta - factor * step_size * updates
-        better = finite & (loss < best_loss)
+    def iteration(carry, _):
+        delta, opt_state, best_delta, best_loss = carry
+        loss, grad = jax.value_and_grad(lambda d: loss_fn(tangent(d)))(delta)
+        updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grad), opt_state)
+        new_delta = optax.apply_updates(delta, updates)
+        better = jnp.isfinite(loss) & (loss < best_loss)
         candidate = delta if cfg.best_pose == "pre_step" else new_delta
-        best_delta = jnp.where(better, candidate, best_delta)
-        best_loss = jnp.where(better, loss, best_loss)
-        delta = jnp.where(finite, new_delta, delta)
-        opt_state = jax.tree_util.tree_map(lambda new, old: jnp.where(finite, new, old), new_opt_state, opt_state)
-        return (delta, opt_state, best_delta, best_loss, nonfinite + (~finite).astype(jnp.int32)), None
+        best_delta = jax.tree.map(lambda c, b: jnp.where(better, c, b), candidate, best_delta)
+        return (new_delta, opt_state, best_delta, jnp.where(better, loss, best_loss)), None
 
-    init = (delta0, adam.init(delta0), delta0, jnp.float32(jnp.inf), jnp.int32(0))
-    (_, _, best_delta, best_loss, nonfinite), _ = jax.lax.scan(iteration, init, decay)
-    return TrackResult(se3_exp(best_delta) @ w2c_init, best_loss, nonfinite)
+    init = (delta0, optimizer.init(delta0), delta0, jnp.float32(jnp.inf))
+    (_, opt_state, best_delta, best_loss), _ = jax.lax.scan(iteration, init, None, length=cfg.iters)
+    return TrackResult(se3_exp(tangent(best_delta)) @ w2c_init, best_loss, nonfinite_steps(opt_state))
 
 
 def _track_lm(view_at, loss_fn, w2c_init, config: SlamConfig, lambda_color, color, depth) -> TrackResult:

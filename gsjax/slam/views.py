@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 
 from gsjax.camera import Intrinsics
 from gsjax.gaussians import Gaussians
@@ -13,27 +12,27 @@ from gsjax.raster import render
 from gsjax.slam.config import SlamConfig
 
 
-class View(NamedTuple):
+class RenderedView(NamedTuple):
     """What the losses and densification read from a render: color [H, W, 3], depth (sum w z) [H, W],
     silhouette [H, W], depth_sq [H, W], ``truncated`` (any pixel cut by the rasterizer's capacities) and
-    ``residual`` (the largest transmittance left at such a cut)."""
+    ``truncation_residual`` (the largest transmittance left at such a cut)."""
 
     color: jax.Array
     depth: jax.Array
     silhouette: jax.Array
     depth_sq: jax.Array
     truncated: jax.Array
-    residual: jax.Array
+    truncation_residual: jax.Array
 
 
-def _view(out) -> View:
-    return View(out.color, out.depth, out.silhouette, out.depth_sq, out.stats.truncated,
-                out.stats.max_residual_transmittance)
+def _view(out) -> RenderedView:
+    return RenderedView(out.color, out.depth, out.silhouette, out.depth_sq, out.stats.truncated,
+                        out.stats.max_residual_transmittance)
 
 
 def render_view(
     gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, config: SlamConfig, smooth, gamma
-) -> View:
+) -> RenderedView:
     """Render ``gaussians`` at ``w2c``; with CB-KNN's per-pixel smoothing where ``smooth`` (a traced bool) is true.
 
     When the config never smooths renders (CB-KNN mode other than ``paper``), this is the canonical render and
@@ -52,7 +51,3 @@ def is_keyframe(frame, num_frames, every: int):
     """SplaTAM's keyframe rule (A.10): frame 0, every ``every``-th frame ((t+1) % every == 0), the second-to-last."""
     return (frame == 0) | ((frame + 1) % every == 0) | (frame == num_frames - 2)
 
-
-def smooth_flag(config: SlamConfig, stage_enabled: bool, keyframe) -> jax.Array:
-    """Whether a render of a (non-)keyframe is smoothed at a stage, given the static switches."""
-    return jnp.asarray(config.cbknn.smooth_renders and stage_enabled) & keyframe

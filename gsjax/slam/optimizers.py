@@ -1,0 +1,54 @@
+"""The optimisers of tracking and mapping, from optax combinators: SplaTAM's fresh-per-frame Adam, a step size per
+parameter group (``optax.multi_transform``), skipped and counted non-finite steps (``optax.apply_if_finite``)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from gsjax.slam.config import SlamConfig
+
+MAP_PARAMS = ("means", "rgb", "logit_opacities", "log_scales")  # the Gaussians' fields mapping optimises
+
+
+def finite_only_if_loss_is(loss, grads):
+    """``grads`` unchanged where ``loss`` is finite, else NaN everywhere: a step whose loss is not finite is skipped
+    like one whose gradient is not (``apply_if_finite`` looks at the gradient only)."""
+    return jax.tree.map(lambda g: jnp.where(jnp.isfinite(loss), g, jnp.nan), grads)
+
+
+def nonfinite_steps(opt_state) -> jax.Array:
+    """[] int32 steps that ``apply_if_finite`` skipped so far."""
+    return optax.tree_utils.tree_get(opt_state, "total_notfinite")
+
+
+def pose_optimizer(config: SlamConfig) -> optax.GradientTransformation:
+    """SplaTAM's per-frame Adam on the pose tangent ``{"rho": [3], "phi": [3]}``: step ``lr_trans`` on rho and
+    ``lr_rot`` on phi, each decaying exponentially to ``lr_final_ratio`` of itself over the iterations; an update
+    whose gradient is not finite is skipped and counted (``total_notfinite`` in the state)."""
+    cfg = config.tracking
+
+    def adam(lr):
+        decay = lambda count: lr * cfg.lr_final_ratio ** (count / max(cfg.iters - 1, 1))  # noqa: E731
+        return optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-8), optax.scale_by_learning_rate(decay))
+
+    groups = optax.multi_transform({"rho": adam(cfg.lr_trans), "phi": adam(cfg.lr_rot)}, {"rho": "rho", "phi": "phi"})
+    return optax.apply_if_finite(groups, max_consecutive_errors=cfg.iters)  # never gives up within a frame
+
+
+def map_optimizer(config: SlamConfig, lr_means) -> optax.GradientTransformation:
+    """SplaTAM's per-frame Adam (eps 1e-15) on the map parameters ``{name: array}`` with a step size per group
+    (``lr_means`` for the means, traced; ``mapping.lr_rgb``, ``lr_opacity``, ``lr_scale``); an update whose gradient
+    is not finite is skipped and counted (``total_notfinite``); with ``skip_step_at_prune`` the iterations in
+    ``prune_iters`` take no step (SplaTAM's quirk)."""
+    cfg = config.mapping
+    rates = dict(means=lr_means, rgb=cfg.lr_rgb, logit_opacities=cfg.lr_opacity, log_scales=cfg.lr_scale)
+    groups = {name: optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15), optax.scale_by_learning_rate(lr))
+              for name, lr in rates.items()}
+    optimizer = optax.apply_if_finite(optax.multi_transform(groups, {name: name for name in MAP_PARAMS}),
+                                      max_consecutive_errors=cfg.iters)  # never gives up within a frame
+    if cfg.skip_step_at_prune and cfg.prune_iters:
+        prune_iters = jnp.asarray(cfg.prune_iters, jnp.int32)
+        optimizer = optax.transforms.conditionally_mask(optimizer, lambda step: ~jnp.isin(step, prune_iters))
+    return optimizer
