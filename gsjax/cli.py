@@ -250,7 +250,7 @@ def _parse_overrides(tokens: list[str]) -> dict[str, str]:
 
 def _open_run_sequence(args):
     """The sequence to run on, with the downscale the preset implies."""
-    from gsjax.runner import default_downscale
+    from gsjax.slam.presets import working_downscale
 
     if args.stride < 1 or (args.max_frames is not None and args.max_frames < 1):
         raise UserError("--stride and --max-frames must be >= 1")
@@ -263,7 +263,7 @@ def _open_run_sequence(args):
         from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 
         base = SyntheticConfig()
-        factor = args.downscale or default_downscale(base.width, args.preset)
+        factor = args.downscale or working_downscale(args.preset, base.width)
         if factor < 1 or base.width % factor or base.height % factor:
             raise UserError(f"--downscale {factor} must divide the synthetic {base.width}x{base.height} image")
         frames = args.max_frames or SYNTHETIC_FRAMES
@@ -288,7 +288,7 @@ def _open_run_sequence(args):
         raise UserError(f"--intrinsics: the principal point ({args.intrinsics[2]:g}, {args.intrinsics[3]:g}) lies "
                         f"outside the {native.width}x{native.height} images; give the values in pixels at the stored "
                         "image size")
-    factor = args.downscale or default_downscale(native.width, args.preset)
+    factor = args.downscale or working_downscale(args.preset, native.width)
     if factor > min(native.width, native.height):
         raise UserError(f"--downscale {factor} leaves no pixel of the {native.width}x{native.height} images")
     sequence = open_sequence(args.dataset, args.path, max_frames=args.max_frames, stride=args.stride,
@@ -299,17 +299,20 @@ def _open_run_sequence(args):
 def _cmd_run(args) -> int:
     import logging
 
+    from gsjax.config_text import apply_overrides
     from gsjax.io.run_dir import check_run_dir
     from gsjax.run_outputs import summary_lines
     from gsjax.runner import RunOptions, run_slam
-    from gsjax.config_text import apply_overrides
-    from gsjax.slam.presets import preset, with_cbknn_mode
+    from gsjax.slam.presets import PRESET_WIDTH, preset, with_cbknn_mode
 
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     logging.getLogger("gsjax").setLevel(logging.INFO)
     for noisy in ("absl", "orbax", "jax"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
-    config = apply_overrides(with_cbknn_mode(preset(args.preset), args.cbknn), args.overrides)
+    def configure(width=None):  # the preset at the working width, then the overrides as given
+        return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)
+
+    configure()  # bad overrides are reported before any data is read
     options = RunOptions(out=args.out, chunk=args.chunk, seed=args.seed, resume=args.resume,
                          overwrite=args.overwrite, eval_every=args.eval_every, progress=not args.no_progress)
     check_run_dir(args.out, resume=args.resume, overwrite=args.overwrite)  # before reading any data
@@ -318,8 +321,14 @@ def _cmd_run(args) -> int:
                     cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides,
                     intrinsics=list(args.intrinsics) if args.intrinsics else None, depth_scale=args.depth_scale,
                     sequence=sequence.name)
+    width = sequence.intrinsics.width
+    config = configure(width)
     print(f"gsjax run: {sequence!r}, preset {args.preset}, CB-KNN {args.cbknn}, downscale {factor} -> {args.out}",
           flush=True)
+    scale = width / PRESET_WIDTH[args.preset]
+    print(f"working resolution {width}x{sequence.intrinsics.height}: pixel settings at {scale:g}x the preset's "
+          f"{PRESET_WIDTH[args.preset]} px (mapping.overlap_margin {config.mapping.overlap_margin:g} px, "
+          f"cbknn.params.alpha {config.cbknn.params.alpha:g})", flush=True)
     metrics = run_slam(sequence, config, options, describe=describe, input_warnings=tuple(input_warnings))
     for line in summary_lines(metrics, args.out):
         print(line)

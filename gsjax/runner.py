@@ -40,7 +40,6 @@ from gsjax.slam.system import StepOutputs, run_chunk
 
 log = logging.getLogger("gsjax")
 
-CPU_TARGET_WIDTH = 80  # the cpu preset processes about 80x60 pixels
 # Median depth (m) of a frame outside this range means the depth scale is almost surely wrong for an indoor scene.
 PLAUSIBLE_MEDIAN_DEPTH_M = (0.1, 20.0)
 
@@ -76,11 +75,6 @@ class RunOptions:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
         if self.capacity is not None and self.capacity < 1:
             raise ValueError(f"--capacity must be >= 1, got {self.capacity}")
-
-
-def default_downscale(width: int, preset: str) -> int:
-    """The cpu preset reduces the input to about 80 px across; other presets keep the native resolution."""
-    return max(1, round(width / CPU_TARGET_WIDTH)) if preset == "cpu" else 1
 
 
 # ------------------------------------------------------------------------------------------------ the run

@@ -38,9 +38,10 @@ def tiny_sequence(num_frames: int = FRAMES) -> Sequence:
 
 
 def tiny_config(mode: str = "off") -> SlamConfig:
-    """The ``cpu`` preset with CB-KNN ``mode`` and tiny iteration counts, built exactly as ``gsjax run --preset cpu
-    --cbknn MODE --tracking.iters 3 --mapping.iters 2`` builds it (so the CLI test reuses the compiled scan)."""
-    return apply_overrides(with_cbknn_mode(preset("cpu"), mode), TINY_OVERRIDES)
+    """The ``cpu`` preset at the tiny width with CB-KNN ``mode`` and tiny iteration counts, built exactly as ``gsjax
+    run --preset cpu --cbknn MODE --tracking.iters 3 --mapping.iters 2`` builds it for 40x30 frames (so the CLI
+    tests reuse the compiled scan and record this very config)."""
+    return apply_overrides(with_cbknn_mode(preset("cpu", WIDTH), mode), TINY_OVERRIDES)
 
 
 def frames(begin: int, end: int, num_frames: int = FRAMES) -> Frame:

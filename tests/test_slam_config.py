@@ -133,3 +133,24 @@ def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
               "cbknn.params.k_max": "8", "keyframe_every": "3", "raster.max_contributors": "32"}
     for name, value in static.items():
         assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) != structure, name
+
+
+def test_a_preset_owns_its_resolution_and_scales_its_pixel_settings():
+    from gsjax.slam.presets import PRESET_WIDTH, working_downscale
+
+    cpu = preset("cpu")
+    assert preset("cpu", PRESET_WIDTH["cpu"]) is not None and preset("cpu", 80) == cpu  # its own width: unchanged
+    full = preset("cpu", 640)  # `gsjax run --preset cpu --downscale 1` on 640x480 input
+    assert full.mapping.overlap_margin == 8 * cpu.mapping.overlap_margin == 20.0  # SplaTAM's 20 px at 640
+    assert full.cbknn.params.alpha == pytest.approx(8 * cpu.cbknn.params.alpha)
+    assert config_to_dict(full.tracking) == config_to_dict(cpu.tracking)  # nothing else is in pixels
+    fraction = dataclasses.replace(cpu, cbknn=dataclasses.replace(
+        cpu.cbknn, params=dataclasses.replace(cpu.cbknn.params, shift_mode="fraction")))
+    from gsjax.slam.presets import at_width
+
+    assert at_width(fraction, 640, 80).cbknn.params.alpha == cpu.cbknn.params.alpha  # a fraction, not px
+    assert preset("tum", 320).mapping.overlap_margin == preset("tum").mapping.overlap_margin / 2
+    assert [working_downscale("cpu", w) for w in (80, 160, 640, 1200)] == [1, 2, 8, 15]
+    assert working_downscale("replica", 1200) == working_downscale("tum", 640) == 1  # paper presets: native
+    with pytest.raises(ValueError, match="unknown preset 'fast'"):
+        preset("fast")

@@ -110,7 +110,8 @@ def test_frame_zero_moves_the_means_with_its_own_step_size():
     other fields' steps are unchanged by ``first``."""
     config = apply_overrides(map_config(), {"mapping.lr_means": "0", "mapping.lr_means_first": "1e-3"})
     start = first_frame_map()
-    later, first = run_map_window(start, config=config, first_map=False), run_map_window(start, config=config, first_map=True)
+    later = run_map_window(start, config=config, first_map=False)
+    first = run_map_window(start, config=config, first_map=True)
     np.testing.assert_array_equal(np.asarray(later.gaussians.means), np.asarray(start.means))
     moved = np.abs(np.asarray(first.gaussians.means) - np.asarray(start.means))[np.asarray(start.active)]
     assert moved.max() > 1e-3  # up to 30 steps of 1e-3 m

@@ -223,8 +223,9 @@ class SlamConfig:
       raster: rasterizer settings. SLAM maps carry many young, semi-transparent Gaussians (opacity 0.5 at
         birth), so the SLAM default keeps 96 slots per pixel (the rasterizer's own default, 64, fits converged
         SplaTAM-density maps). Close-up views still exceed it at a few pixels (7-Scenes kitchen: up to ~150
-        contributors); that is reported per frame (``truncation_residual``: at most 0.41 over the 150-frame run, so a cut
-        pixel's silhouette stays above the densification threshold); 128 slots moved the 150-frame ATE by 0.13 cm.
+        contributors); that is reported per frame (``truncation_residual``: at most 0.41 over the 150-frame run,
+        so a cut pixel's silhouette stays above the densification threshold); 128 slots moved the 150-frame ATE by
+        0.13 cm.
       keyframe_every: a keyframe every this many frames (plus frame 0 and the second-to-last frame).
       scene_radius_depth_ratio: scene radius = max depth of frame 0 / this (used by pruning).
       min_valid_depth: the fraction of pixels with valid depth a frame needs to be tracked and mapped; a frame

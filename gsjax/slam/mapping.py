@@ -31,7 +31,9 @@ class WindowFrames(NamedTuple):
     valid: jax.Array
 
 
-def gather_window_frames(window: Window, keyframes: KeyframeBuffer, color, depth, w2c, gamma, current_is_keyframe) -> WindowFrames:
+def gather_window_frames(
+    window: Window, keyframes: KeyframeBuffer, color, depth, w2c, gamma, current_is_keyframe
+) -> WindowFrames:
     """Gather the window's views from the keyframe buffer and the current frame."""
     current = window.index == CURRENT
     slot = jnp.maximum(window.index, 0)
@@ -62,7 +64,13 @@ class MapResult(NamedTuple):
 
 
 def map_window(
-    key, gaussians: Gaussians, views: WindowFrames, intrinsics: Intrinsics, config: SlamConfig, scene_radius, first_map=False
+    key,
+    gaussians: Gaussians,
+    views: WindowFrames,
+    intrinsics: Intrinsics,
+    config: SlamConfig,
+    scene_radius,
+    first_map=False,
 ) -> MapResult:
     """``config.mapping.iters`` iterations, each on one view drawn uniformly from the valid window entries;
     pruning at ``prune_iters`` (after the gradient, before the step, as SplaTAM). ``first_map`` (traced bool): the

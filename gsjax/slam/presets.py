@@ -1,5 +1,11 @@
 """Named SLAM configurations: ``replica``, ``tum`` and ``scannet`` hold SplaTAM's per-dataset values
-(method_spec A.11) and the paper's CB-KNN K0 (D.6); ``cpu`` is sized for 2 CPU cores."""
+(method_spec A.11) and the paper's CB-KNN K0 (D.6); ``cpu`` is sized for 2 CPU cores.
+
+A preset owns its resolution. Its pixel-sized settings (:data:`PIXEL_SETTINGS`) are given for the image width in
+:data:`PRESET_WIDTH`; ``preset(name, width=w)`` scales them to ``w`` px, so the same preset means the same physical
+margins and shifts at any resolution. The ``cpu`` preset also works at about that width (``gsjax run`` reduces its
+input to ~80 px across, :func:`working_downscale`); the paper presets work at the input's own resolution.
+"""
 
 from __future__ import annotations
 
@@ -10,14 +16,56 @@ from gsjax.raster.cbknn import CBKNN
 from gsjax.slam.config import CBKNNConfig, MappingConfig, SlamConfig, TrackingConfig
 
 
+# The width (px) each preset's pixel-sized settings are given for: the cpu preset's working width, and the native
+# width of the dataset each paper preset is for (Replica 1200x680, TUM and ScanNet 640x480).
+PRESET_WIDTH = {"cpu": 80, "replica": 1200, "tum": 640, "scannet": 640}
+REDUCES_INPUT = ("cpu",)  # presets that reduce the input to about their width
+# Settings measured in pixels of the working image (the CB-KNN shift only in its "unit" mode, where alpha is px).
+PIXEL_SETTINGS = ("mapping.overlap_margin", "cbknn.params.alpha")
+
+
+def working_downscale(name: str, width: int) -> int:
+    """The integer reduction ``gsjax run`` applies to input ``width`` px wide under preset ``name`` (1 = native)."""
+    _check_name(name)
+    return max(1, round(width / PRESET_WIDTH[name])) if name in REDUCES_INPUT else 1
+
+
+def _check_name(name: str) -> None:
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r} ({', '.join(PRESETS)})")
+
+
+def at_width(config: SlamConfig, width: int, preset_width: int) -> SlamConfig:
+    """``config`` with its pixel-sized settings (:data:`PIXEL_SETTINGS`) scaled from ``preset_width`` to ``width``
+    px; the very same config when the two agree."""
+    if width == preset_width:
+        return config
+    scale = width / preset_width
+    params = config.cbknn.params
+    if params.shift_mode == "unit":
+        params = dataclasses.replace(params, alpha=params.alpha * scale)
+    return dataclasses.replace(
+        config,
+        mapping=dataclasses.replace(config.mapping, overlap_margin=config.mapping.overlap_margin * scale),
+        cbknn=dataclasses.replace(config.cbknn, params=params),
+    )
+
+
 def _cbknn_values(k0: float) -> CBKNNConfig:
     """The paper's CB-KNN values for a dataset (alpha 0.2 px, beta 0.3, its K0); the mode stays ``off`` until
     chosen (``gsjax run --cbknn``, :func:`with_cbknn_mode`)."""
     return CBKNNConfig(mode="off", params=CBKNN(alpha=0.2, k0=k0, beta=0.3))
 
 
-def preset(name: str) -> SlamConfig:
-    """A named preset: ``replica``, ``tum``, ``scannet`` (SplaTAM / paper values) or ``cpu`` (2 CPU cores)."""
+def preset(name: str, width: int | None = None) -> SlamConfig:
+    """A named preset, ``replica``, ``tum``, ``scannet`` (SplaTAM / paper values) or ``cpu`` (2 CPU cores), for
+    images ``width`` px wide (default: the preset's own width, :data:`PRESET_WIDTH`)."""
+    _check_name(name)
+    config = _preset_values(name)
+    return config if width is None else at_width(config, width, PRESET_WIDTH[name])
+
+
+def _preset_values(name: str) -> SlamConfig:
     # SplaTAM's rotation learning rates act on quaternions; phi moves about twice as fast (see TrackingConfig).
     if name == "replica":
         return SlamConfig(
@@ -41,7 +89,7 @@ def preset(name: str) -> SlamConfig:
             scene_radius_depth_ratio=3.0,
         )
     if name == "cpu":
-        # About 80x60 input (see the runner's downscale). Tracking compares D / S (young maps have S < 1, and
+        # About 80x60 input (PRESET_WIDTH, working_downscale). Tracking compares D / S (young maps have S < 1, and
         # D = sum w z would pull the camera along its axis). The means keep SplaTAM's step (1e-4) after frame 0: a
         # larger one lets each frame's map update absorb that frame's tracking error, which then accumulates
         # (7-Scenes kitchen, 150 frames: 1e-3 -> 2.9 cm ATE, 3e-4 -> 2.5 cm, 1e-4 -> 2.0 cm; noisy synthetic,
