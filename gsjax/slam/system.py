@@ -29,7 +29,7 @@ from gsjax.raster.cbknn import motion_from_poses
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import densify
 from gsjax.slam.keyframes import select_window
-from gsjax.slam.mapping import map_window, gather_window_frames
+from gsjax.slam.mapping import gather_window_frames, map_window
 from gsjax.slam.state import SlamState
 from gsjax.slam.tracking import track
 from gsjax.slam.views import is_keyframe, render_view
