@@ -1,8 +1,8 @@
 """Named SLAM configurations: ``replica``, ``tum`` and ``scannet`` hold SplaTAM's per-dataset values
 (method_spec A.11) and the paper's CB-KNN K0 (D.6); ``cpu`` is sized for 2 CPU cores.
 
-A preset owns its resolution. Its pixel-sized settings (:data:`PIXEL_SETTINGS`) are given for the image width in
-:data:`PRESET_WIDTH`; ``preset(name, width=w)`` scales them to ``w`` px, so the same preset means the same physical
+A preset owns its resolution. Its pixel-sized settings (``mapping.overlap_margin``, and ``cbknn.params.alpha`` in
+the "unit" shift mode, where it is px) are given for the image width in :data:`PRESET_WIDTH`; ``preset(name, width=w)`` scales them to ``w`` px, so the same preset means the same physical
 margins and shifts at any resolution. The ``cpu`` preset also works at about that width (``gsjax run`` reduces its
 input to ~80 px across, :func:`working_downscale`); the paper presets work at the input's own resolution.
 """
@@ -20,8 +20,6 @@ from gsjax.slam.config import CBKNNConfig, MappingConfig, SlamConfig, TrackingCo
 # width of the dataset each paper preset is for (Replica 1200x680, TUM and ScanNet 640x480).
 PRESET_WIDTH = {"cpu": 80, "replica": 1200, "tum": 640, "scannet": 640}
 REDUCES_INPUT = ("cpu",)  # presets that reduce the input to about their width
-# Settings measured in pixels of the working image (the CB-KNN shift only in its "unit" mode, where alpha is px).
-PIXEL_SETTINGS = ("mapping.overlap_margin", "cbknn.params.alpha")
 
 
 def working_downscale(name: str, width: int) -> int:
@@ -36,8 +34,8 @@ def _check_name(name: str) -> None:
 
 
 def at_width(config: SlamConfig, width: int, preset_width: int) -> SlamConfig:
-    """``config`` with its pixel-sized settings (:data:`PIXEL_SETTINGS`) scaled from ``preset_width`` to ``width``
-    px; the very same config when the two agree."""
+    """``config`` with its pixel-sized settings (``mapping.overlap_margin``; ``cbknn.params.alpha`` when it is px)
+    scaled from ``preset_width`` to ``width`` px; the very same config when the two agree."""
     if width == preset_width:
         return config
     scale = width / preset_width
