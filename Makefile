@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: install
-	$(BIN)/gsjax run --dataset synthetic --out outputs/demo
+	$(BIN)/gsjax run --dataset synthetic --out outputs/demo --overwrite
 
 test: install
 	$(BIN)/python -m pytest -q -m "not slow" tests
