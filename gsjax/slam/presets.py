@@ -63,46 +63,44 @@ def preset(name: str, width: int | None = None) -> SlamConfig:
     return config if width is None else at_width(config, width, PRESET_WIDTH[name])
 
 
-def _preset_values(name: str) -> SlamConfig:
-    # SplaTAM's rotation learning rates act on quaternions; phi moves about twice as fast (see TrackingConfig).
-    if name == "replica":
-        return SlamConfig(
-            tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=8e-4),
-            mapping=MappingConfig(iters=60, window_size=24),
-            cbknn=_cbknn_values(5.0),
-            scene_radius_depth_ratio=3.0,
-        )
-    if name == "tum":
-        return SlamConfig(
-            tracking=TrackingConfig(iters=200, lr_trans=2e-3, lr_rot=4e-3),
-            mapping=MappingConfig(iters=30, window_size=20),
-            cbknn=_cbknn_values(8.0),
-            scene_radius_depth_ratio=2.0,
-        )
-    if name == "scannet":
-        return SlamConfig(
-            tracking=TrackingConfig(iters=100, lr_trans=5e-4, lr_rot=1e-3),
-            mapping=MappingConfig(iters=30, window_size=10),
-            cbknn=_cbknn_values(8.0),
-            scene_radius_depth_ratio=3.0,
-        )
-    if name == "cpu":
-        # About 80x60 input (PRESET_WIDTH, working_downscale). Tracking compares D / S (young maps have S < 1, and
-        # D = sum w z would pull the camera along its axis). The means keep SplaTAM's step (1e-4) after frame 0: a
-        # larger one lets each frame's map update absorb that frame's tracking error, which then accumulates
-        # (7-Scenes kitchen, 150 frames: 1e-3 -> 2.9 cm ATE, 3e-4 -> 2.5 cm, 1e-4 -> 2.0 cm; noisy synthetic,
-        # 60 frames: 0.42 -> 0.34 cm). Frame 0's map takes 1e-3 to remove the blending depth bias of fresh
-        # Gaussians, which at ~8x a full-resolution pixel is centimetres (Replica sample, 80x45: 2.2 cm ATE with
-        # 1e-4 on frame 0 too, no better than a constant pose).
-        return SlamConfig(
-            tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=2e-3, normalized_depth=True),
-            mapping=MappingConfig(iters=30, window_size=10, lr_means_first=1e-3, overlap_samples=800,
-                                  overlap_margin=2.5),
-            cbknn=_cbknn_values(8.0),
-            scene_radius_depth_ratio=2.0,
-        )
-    raise ValueError(f"unknown preset {name!r} ({', '.join(PRESETS)})")
+# SplaTAM's per-dataset values (method_spec A.11) and the paper's K0 (D.6). SplaTAM's rotation learning rates act on
+# quaternions; phi moves about twice as fast (see TrackingConfig).
+_PAPER = {
+    "replica": dict(tracking_iters=40, lr_trans=2e-3, lr_rot=8e-4, mapping_iters=60, window_size=24, k0=5.0,
+                    scene_radius_depth_ratio=3.0),
+    "tum": dict(tracking_iters=200, lr_trans=2e-3, lr_rot=4e-3, mapping_iters=30, window_size=20, k0=8.0,
+                scene_radius_depth_ratio=2.0),
+    "scannet": dict(tracking_iters=100, lr_trans=5e-4, lr_rot=1e-3, mapping_iters=30, window_size=10, k0=8.0,
+                    scene_radius_depth_ratio=3.0),
+}
 
+
+def _paper_preset(tracking_iters, lr_trans, lr_rot, mapping_iters, window_size, k0, scene_radius_depth_ratio):
+    return SlamConfig(
+        tracking=TrackingConfig(iters=tracking_iters, lr_trans=lr_trans, lr_rot=lr_rot),
+        mapping=MappingConfig(iters=mapping_iters, window_size=window_size),
+        cbknn=_cbknn_values(k0),
+        scene_radius_depth_ratio=scene_radius_depth_ratio,
+    )
+
+
+def _preset_values(name: str) -> SlamConfig:
+    if name in _PAPER:
+        return _paper_preset(**_PAPER[name])
+    # cpu: about 80x60 input (PRESET_WIDTH, working_downscale). Tracking compares D / S (young maps have S < 1, and
+    # D = sum w z would pull the camera along its axis). The means keep SplaTAM's step (1e-4) after frame 0: a
+    # larger one lets each frame's map update absorb that frame's tracking error, which then accumulates
+    # (7-Scenes kitchen, 150 frames: 1e-3 -> 2.9 cm ATE, 3e-4 -> 2.5 cm, 1e-4 -> 2.0 cm; noisy synthetic,
+    # 60 frames: 0.42 -> 0.34 cm). Frame 0's map takes 1e-3 to remove the blending depth bias of fresh
+    # Gaussians, which at ~8x a full-resolution pixel is centimetres (Replica sample, 80x45: 2.2 cm ATE with
+    # 1e-4 on frame 0 too, no better than a constant pose).
+    return SlamConfig(
+        tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=2e-3, normalized_depth=True),
+        mapping=MappingConfig(iters=30, window_size=10, lr_means_first=1e-3, overlap_samples=800,
+                              overlap_margin=2.5),
+        cbknn=_cbknn_values(8.0),
+        scene_radius_depth_ratio=2.0,
+    )
 
 
 def with_cbknn_mode(config: SlamConfig, mode: str) -> SlamConfig:
