@@ -150,13 +150,20 @@ def numbered_files(directory: Path, pattern: str, expected: str | None) -> dict[
     return dict(sorted(found.items()))
 
 
-def require_color_for_depth(colors: dict[int, Path], depths: dict[int, Path], color_name) -> None:
-    """DatasetError naming the colour image a frame lacks when a depth image is numbered as no colour image is;
-    ``color_name(number)`` is the expected colour path (the frames of a numbered layout are its colour images)."""
+def require_color_for_depth(colors: dict[int, Path], depth_dir: Path, depth_pattern: str, color_stem) -> None:
+    """DatasetError naming the colour image a frame lacks when a depth image in ``depth_dir`` (``depth_pattern``, as
+    for :func:`numbered_files`) is numbered as no colour image is: the frames of a numbered layout are its colour
+    images, so such a frame would be dropped without a word. ``color_stem(number)`` is the expected colour path
+    without its suffix (the suffix of the colour images found). A missing ``depth_dir`` is left to the per-frame
+    checks."""
+    if not depth_dir.is_dir():
+        return
+    depths = numbered_files(depth_dir, depth_pattern, None)
     orphans = sorted(set(depths) - set(colors))
     if orphans:
         number = orphans[0]
-        raise DatasetError(f"{color_name(number)}: colour image is missing (its depth image {depths[number].name} is "
+        expected = color_stem(number).with_name(color_stem(number).name + next(iter(colors.values())).suffix)
+        raise DatasetError(f"{expected}: colour image is missing (its depth image {depths[number].name} is "
                            f"present; {len(orphans)} frame(s) without colour in all)")
 
 

@@ -26,9 +26,7 @@ def list_replica(path: Path, intrinsics: GivenIntrinsics = None) -> FrameFiles:
     """List a NICE-SLAM Replica scene directory (the one holding ``results/`` and ``traj.txt``)."""
     path = Path(path)
     colors = numbered_files(path / "results", r"frame(\d+)\.(?:jpg|png)", "frameNNNNNN.jpg")
-    suffix = next(iter(colors.values())).suffix
-    depths = numbered_files(path / "results", r"depth(\d+)\.png", None)
-    require_color_for_depth(colors, depths, lambda n: path / "results" / f"frame{n:06d}{suffix}")
+    require_color_for_depth(colors, path / "results", r"depth(\d+)\.png", lambda n: path / "results" / f"frame{n:06d}")
     depth_paths = [p.with_name("depth" + p.name[len("frame") :]).with_suffix(".png") for p in colors.values()]
     numbers = np.array(list(colors), np.int64)
     c2w, valid = read_pose_lines(path / "traj.txt", int(numbers.max()) + 1)

@@ -25,10 +25,7 @@ def list_scannet(path: Path, intrinsics: GivenIntrinsics = None) -> FrameFiles:
     """List a ScanNet scene export directory (holding ``color/``, ``depth/``, ``pose/``, ``intrinsic/``)."""
     path = Path(path)
     colors = numbered_files(path / "color", r"(\d+)\.(?:jpg|png)", "N.jpg")
-    suffix = next(iter(colors.values())).suffix
-    if (path / "depth").is_dir():
-        depths = numbered_files(path / "depth", r"(\d+)\.png", None)
-        require_color_for_depth(colors, depths, lambda n: path / "color" / f"{n}{suffix}")
+    require_color_for_depth(colors, path / "depth", r"(\d+)\.png", lambda n: path / "color" / str(n))
     stems = [p.stem for p in colors.values()]
     depth_paths = [path / "depth" / f"{stem}.png" for stem in stems]
     intrinsics = given_intrinsics(intrinsics, depth_paths[0])

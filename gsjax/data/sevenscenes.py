@@ -47,9 +47,7 @@ def list_sevenscenes(path: Path, intrinsics: GivenIntrinsics = None) -> FrameFil
     """List a directory of 7-Scenes frames (one ``seq-XX`` folder, or a 3DMatch ``data/`` folder)."""
     path = Path(path)
     colors = numbered_files(path, r"frame-(\d+)\.color\.(?:jpg|png)", "frame-NNNNNN.color.jpg/png")
-    suffix = next(iter(colors.values())).suffix
-    depths = numbered_files(path, r"frame-(\d+)\.depth\.png", None)
-    require_color_for_depth(colors, depths, lambda n: path / f"frame-{n:06d}.color{suffix}")
+    require_color_for_depth(colors, path, r"frame-(\d+)\.depth\.png", lambda n: path / f"frame-{n:06d}.color")
     stems = [p.name.split(".")[0] for p in colors.values()]
     depth_paths = [path / f"{stem}.depth.png" for stem in stems]
     intrinsics = given_intrinsics(intrinsics, depth_paths[0])
