@@ -138,10 +138,6 @@ def _camera_record(sequence: Sequence) -> dict:
                 depth_scale=sequence.depth_scale)
 
 
-def _depth_fraction(frame: Frame) -> float:
-    return float(np.mean(np.asarray(frame.depth) > 0))
-
-
 def _depth_unit_warning(sequence: Sequence, index: int, frame: Frame) -> str | None:
     """A warning when frame ``index``'s median valid depth is implausible for an indoor RGB-D camera."""
     depth = np.asarray(frame.depth)
@@ -154,7 +150,8 @@ def _depth_unit_warning(sequence: Sequence, index: int, frame: Frame) -> str | N
             f"scale ({scale}) looks wrong for this recording: give the right one with --depth-scale S")
 
 
-def _skipped_warning(sequence: Sequence, index: int, fraction: float, config: SlamConfig, started: bool) -> str:
+def _skipped_warning(sequence: Sequence, index: int, frame: Frame, config: SlamConfig, started: bool) -> str:
+    fraction = float(np.mean(np.asarray(frame.depth) > 0))
     then = "" if started else "; the map starts at the first frame with depth"
     return (f"{sequence.describe_frame(index)}: only {100 * fraction:.1f}% of the pixels have valid depth (below "
             f"min_valid_depth {100 * float(config.min_valid_depth):g}%); the frame is not tracked or mapped, its pose "
@@ -238,14 +235,6 @@ def run_slam(
             host_frames = [sequence.read_host(i) for i in range(done, done + count)]
             frames, valid = _pad_chunk(host_frames, options.chunk)
             timings["read_frames_s"] += time.perf_counter() - t0
-            fractions = [_depth_fraction(frame) for frame in host_frames]
-            if not units_checked:
-                usable = [i for i, f in enumerate(fractions) if f >= float(config.min_valid_depth)]
-                if usable:
-                    units_checked = True
-                    message = _depth_unit_warning(sequence, done + usable[0], host_frames[usable[0]])
-                    if message:
-                        warn(message)
             while True:
                 t0 = time.perf_counter()
                 new_state, chunk_out = run_chunk(state, frames, jnp.asarray(valid), config, intrinsics)
@@ -263,8 +252,15 @@ def run_slam(
                 state = grow_capacity(state, capacity)
             if first_chunk_s is None:
                 first_chunk_s = elapsed
+            # The core decided which frames had usable depth; the host only words the warnings.
+            processed = np.flatnonzero(~chunk_out.skipped[:count])
+            if not units_checked and processed.size:
+                units_checked = True
+                message = _depth_unit_warning(sequence, done + int(processed[0]), host_frames[processed[0]])
+                if message:
+                    warn(message)
             for i in np.flatnonzero(chunk_out.skipped[:count]):
-                warn(_skipped_warning(sequence, done + int(i), fractions[i], config,
+                warn(_skipped_warning(sequence, done + int(i), host_frames[i], config,
                                       started=int(chunk_out.num_gaussians[i]) > 0))
             state = new_state
             for name, values in _outputs_to_lists(chunk_out, count).items():
