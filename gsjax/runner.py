@@ -1,11 +1,11 @@
 """The imperative shell of ``gsjax run``: stream chunks of frames through the jitted SLAM scan, checkpoint,
 grow capacity, report progress; then :mod:`gsjax.run_outputs` evaluates and writes the outputs.
 
-The pure core is :func:`gsjax.slam.system.run_chunk`. Between chunks this module:
+The chunk loop is :func:`gsjax.slam.driver.chunk_loop` (the same one :func:`gsjax.slam.run` and the sweep use;
+it grows the map capacity, logged here, when a chunk could not insert every new Gaussian). Between chunks this
+module:
 
 * checkpoints the state (orbax) so ``--resume`` continues exactly where the run stopped;
-* grows the map capacity (doubling, logged) when a chunk could not insert every new Gaussian, and re-runs that
-  chunk from its saved starting state, so no Gaussian is ever dropped;
 * shows a progress bar (frame, tracking loss, Gaussians, ATE so far when ground truth exists, frames/s).
 
 Ground truth is for evaluation only: the frames reach the SLAM core with their GT pose blanked
@@ -29,14 +29,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.config_text import config_to_dict
-from gsjax.data.frame import Frame, stack_frames, to_device, without_ground_truth
+from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
 from gsjax.io.run_dir import check_run_dir, clear_previous_run
 from gsjax.run_outputs import write_outputs
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.state import grow_capacity, initial_state, keyframe_capacity_for
-from gsjax.slam.system import StepOutputs, run_chunk
+from gsjax.slam.driver import chunk_loop
+from gsjax.slam.state import initial_state, keyframe_capacity_for
+from gsjax.slam.system import StepOutputs
 
 log = logging.getLogger("gsjax")
 
@@ -104,14 +105,6 @@ class _Progress:
     def close(self) -> None:
         if self._bar is not None:
             self._bar.close()
-
-
-def _pad_chunk(frames: list[Frame], size: int) -> tuple[Frame, np.ndarray]:
-    """Stack ``frames`` without their ground truth and pad to ``size`` with copies of the last one; (chunk on
-    device, valid mask [size])."""
-    valid = np.arange(size) < len(frames)
-    padded = frames + [frames[-1]] * (size - len(frames))
-    return to_device(without_ground_truth(stack_frames(padded))), valid
 
 
 def _outputs_to_lists(outputs: StepOutputs, count: int) -> dict:
@@ -228,41 +221,29 @@ def run_slam(
         frame_warnings.append(message)
         progress.write(f"warning: {message}", file=sys.stderr)
 
+    def on_grow(dropped, first, last, new_capacity):
+        progress.write(f"capacity: {dropped} new Gaussians found no free slot at frames {first}-{last}; growing the "
+                       f"map to {new_capacity} slots and re-running the chunk")
+
     try:
-        while done < total:
-            count = min(options.chunk, total - done)
-            t0 = time.perf_counter()
-            host_frames = [sequence.read_host(i) for i in range(done, done + count)]
-            frames, valid = _pad_chunk(host_frames, options.chunk)
-            timings["read_frames_s"] += time.perf_counter() - t0
-            while True:
-                t0 = time.perf_counter()
-                new_state, chunk_out = run_chunk(state, frames, jnp.asarray(valid), config, intrinsics)
-                chunk_out = jax.device_get(chunk_out)
-                elapsed = time.perf_counter() - t0
-                dropped = int(np.sum(chunk_out.dropped[:count]))
-                if dropped == 0:
-                    timings["slam_s"] += elapsed
-                    break
-                # Not every new Gaussian found a slot: double the capacity and redo the chunk from its start.
-                timings["regrow_s"] += elapsed
-                capacity *= 2
-                progress.write(f"capacity: {dropped} new Gaussians found no free slot at frames {done}-"
-                               f"{done + count - 1}; growing the map to {capacity} slots and re-running the chunk")
-                state = grow_capacity(state, capacity)
+        for chunk in chunk_loop(state, sequence.read_host, total, config, intrinsics, chunk=options.chunk,
+                                start=done, on_grow=on_grow):
+            state, chunk_out, count, capacity = chunk.state, chunk.outputs, chunk.count, chunk.capacity
+            timings["read_frames_s"] += chunk.read_seconds
+            timings["slam_s"] += chunk.seconds
+            timings["regrow_s"] += chunk.regrow_seconds
             if first_chunk_s is None:
-                first_chunk_s = elapsed
+                first_chunk_s = chunk.seconds
             # The core decided which frames had usable depth; the host only words the warnings.
-            processed = np.flatnonzero(~chunk_out.skipped[:count])
+            processed = np.flatnonzero(~chunk_out.skipped)
             if not units_checked and processed.size:
                 units_checked = True
-                message = _depth_unit_warning(sequence, done + int(processed[0]), host_frames[processed[0]])
+                message = _depth_unit_warning(sequence, done + int(processed[0]), chunk.frames[processed[0]])
                 if message:
                     warn(message)
-            for i in np.flatnonzero(chunk_out.skipped[:count]):
-                warn(_skipped_warning(sequence, done + int(i), host_frames[i], config,
+            for i in np.flatnonzero(chunk_out.skipped):
+                warn(_skipped_warning(sequence, done + int(i), chunk.frames[i], config,
                                       started=int(chunk_out.num_gaussians[i]) > 0))
-            state = new_state
             for name, values in _outputs_to_lists(chunk_out, count).items():
                 outputs.setdefault(name, []).extend(values)
             done += count

@@ -215,11 +215,34 @@ class CBKNNConfig:
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
+class NoiseConfig:
+    """Noise injected for robustness studies (:mod:`gsjax.slam.noise`); all zero (off) by default, all traced, so
+    noise levels sweep in one program.
+
+    Attributes:
+      map_means_cm: std (cm) of Gaussian noise added to every active mean of the map that a frame's tracking
+        renders, drawn afresh per frame (the stored map is not changed: noisy Gaussian parameters at tracking time).
+      map_rgb: std of the noise added to those Gaussians' colours (colour units, images in [0, 1]).
+      depth_cm: std (cm) of noise added to each valid pixel of the input depth, before everything (tracking,
+        densification, mapping, the stored keyframe).
+    """
+
+    map_means_cm: float = 0.0
+    map_rgb: float = 0.0
+    depth_cm: float = 0.0
+
+    def __post_init__(self):
+        for name in ("map_means_cm", "map_rgb", "depth_cm"):
+            _check_number("noise", name, getattr(self, name), 0.0)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
 class SlamConfig:
     """Everything the SLAM core needs (a pytree: traced hyperparameters, static shapes and modes).
 
     Attributes:
-      tracking, mapping, densify, cbknn: the stage configs.
+      tracking, mapping, densify, cbknn: the stage configs; noise: injected noise (off by default).
       raster: rasterizer settings. SLAM maps carry many young, semi-transparent Gaussians (opacity 0.5 at
         birth), so the SLAM default keeps 96 slots per pixel (the rasterizer's own default, 64, fits converged
         SplaTAM-density maps). Close-up views still exceed it at a few pixels (7-Scenes kitchen: up to ~150
@@ -243,6 +266,7 @@ class SlamConfig:
     keyframe_every: int = static(5)
     scene_radius_depth_ratio: float = 3.0
     min_valid_depth: float = static(0.01)
+    noise: NoiseConfig = NoiseConfig()
 
     def __post_init__(self):
         _check_positive_int("config", "keyframe_every", self.keyframe_every)

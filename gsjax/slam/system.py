@@ -30,6 +30,7 @@ from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import densify
 from gsjax.slam.keyframes import select_window
 from gsjax.slam.mapping import gather_window_frames, map_window
+from gsjax.slam.noise import NOISE_STREAM, add_depth_noise, perturb_map
 from gsjax.slam.state import SlamState
 from gsjax.slam.tracking import track
 from gsjax.slam.views import is_keyframe, render_view
@@ -74,15 +75,21 @@ def _predicted_pose(state: SlamState) -> jax.Array:
     return jnp.where(state.frame >= 2, constant_velocity(state.w2c_prev2, state.w2c_prev1), state.w2c_prev1)
 
 
-def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics) -> tuple[SlamState, StepOutputs]:
-    """Process one frame (its colour and depth); returns the new state and the frame's outputs."""
+def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics,
+         pose: jax.Array | None = None) -> tuple[SlamState, StepOutputs]:
+    """Process one frame (its colour and depth); returns the new state and the frame's outputs.
+
+    ``pose`` [4, 4] w2c: a known pose to map the frame at instead of tracking it (mapping-only studies, e.g. a map
+    built from ground truth); None tracks.
+    """
     usable = jnp.mean(frame.depth > 0) >= config.min_valid_depth
-    return jax.lax.cond(usable, lambda s: _process(s, frame, config, intrinsics), lambda s: _coast(s, config), state)
+    return jax.lax.cond(usable, lambda s: _process(s, frame, config, intrinsics, pose), lambda s: _coast(s, config, pose),
+                        state)
 
 
-def _coast(state: SlamState, config: SlamConfig) -> tuple[SlamState, StepOutputs]:
-    """A frame without usable depth: the predicted pose, the map and keyframes untouched."""
-    w2c = orthonormalize(_predicted_pose(state))
+def _coast(state: SlamState, config: SlamConfig, pose) -> tuple[SlamState, StepOutputs]:
+    """A frame without usable depth: the predicted (or known) pose, the map and keyframes untouched."""
+    w2c = orthonormalize(_predicted_pose(state) if pose is None else pose)
     zero = jnp.float32(0.0)
     outputs = StepOutputs(w2c=w2c, tracking_loss=zero, mapping_loss=zero, num_gaussians=state.gaussians.num_active(),
                           added=jnp.int32(0), dropped=jnp.int32(0), keyframe=jnp.bool_(False),
@@ -93,8 +100,9 @@ def _coast(state: SlamState, config: SlamConfig) -> tuple[SlamState, StepOutputs
     return new_state, outputs
 
 
-def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics):
+def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics, pose):
     t = state.frame
+    frame = add_depth_noise(frame, config.noise, jax.random.fold_in(state.key, NOISE_STREAM))
     started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
     keyframe = is_keyframe(t, state.num_frames, config.keyframe_every) | ~started
     smooth = jnp.asarray(config.cbknn.smooth_renders) & keyframe
@@ -105,13 +113,19 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         w2c_init = _predicted_pose(state)
 
         def do_track():
-            result = track(state.gaussians, frame.color, frame.depth, w2c_init, intrinsics, config, smooth, gamma)
+            if pose is not None:
+                return pose, jnp.float32(0.0), jnp.int32(0)
+            seen = perturb_map(state.gaussians, config.noise, jax.random.fold_in(state.key, NOISE_STREAM + 1))
+            result = track(seen, frame.color, frame.depth, w2c_init, intrinsics, config, smooth, gamma)
             return result.w2c, result.loss, result.nonfinite
 
         def skip_track():
             return w2c_init, jnp.float32(0.0), jnp.int32(0)
 
-        w2c, tracking_loss, nonfinite = jax.lax.cond(started, do_track, skip_track)
+        if pose is None:
+            w2c, tracking_loss, nonfinite = jax.lax.cond(started, do_track, skip_track)
+        else:
+            w2c, tracking_loss, nonfinite = do_track()
         w2c = orthonormalize(w2c)
 
     with jax.named_scope("densify"):
@@ -160,20 +174,23 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
 
 
 @jax.jit
-def run_chunk(state: SlamState, frames: Frame, valid: jax.Array, config: SlamConfig, intrinsics: Intrinsics):
+def run_chunk(state: SlamState, frames: Frame, valid: jax.Array, config: SlamConfig, intrinsics: Intrinsics,
+              poses: jax.Array | None = None):
     """``lax.scan`` of :func:`step` over a chunk of frames stacked along a leading axis -> (state, outputs).
 
     ``valid`` [C] bool marks real frames; padding frames (a short last chunk padded to the chunk size, so it
-    reuses the compiled program) leave the state untouched and give zero outputs.
+    reuses the compiled program) leave the state untouched and give zero outputs. ``poses`` [C, 4, 4]: known
+    w2c poses instead of tracking (see :func:`step`).
     """
 
     def body(state, inputs):
-        frame, is_real = inputs
+        frame, is_real, pose = inputs
+        one = lambda s, f: step(s, f, config, intrinsics, pose)  # noqa: E731
 
         def skip(state, frame):
-            _, zeros = jax.eval_shape(lambda s, f: step(s, f, config, intrinsics), state, frame)
+            _, zeros = jax.eval_shape(one, state, frame)
             return state, jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), zeros)
 
-        return jax.lax.cond(is_real, lambda s, f: step(s, f, config, intrinsics), skip, state, frame)
+        return jax.lax.cond(is_real, one, skip, state, frame)
 
-    return jax.lax.scan(body, state, (frames, valid))
+    return jax.lax.scan(body, state, (frames, valid, poses))

@@ -1,0 +1,230 @@
+"""The chunk loop: frames streamed through the jitted SLAM scan a chunk at a time, with capacity growth, for one
+config or a batch of configs vmapped into one program. ``gsjax run``, ``gsjax sweep``, ``gsjax landscape`` and
+the in-memory :func:`run` all drive SLAM through :func:`chunk_loop`.
+
+    from gsjax import slam
+    result = slam.run(frames, slam.preset("cpu", 80), intrinsics, seed=0)   # frames: a stacked Frame [T, ...]
+    result.w2c  # [T, 4, 4] estimated world-to-camera poses (the SLAM world frame is the first camera)
+
+Capacity: the map has a fixed number of slots. When a chunk could not insert every new Gaussian (in any config
+of a batch), the capacity doubles and the chunk is re-run from its saved starting state, so no Gaussian is
+dropped; the result equals a run started with the larger capacity up to float32 rounding.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gsjax.camera import Intrinsics
+from gsjax.data.frame import Frame, stack_frames, to_device, without_ground_truth
+from gsjax.slam.config import SlamConfig
+from gsjax.slam.state import SlamState, grow_capacity, initial_state, keyframe_capacity_for
+from gsjax.slam.system import StepOutputs, run_chunk
+
+
+class Chunk(NamedTuple):
+    """One processed chunk, as :func:`chunk_loop` yields it.
+
+    Attributes:
+      start, count: its first frame and number of real frames.
+      frames: the ``count`` host frames read (with their ground truth, for the shell's warnings).
+      state: the state after the chunk ([B, ...] leaves when batched).
+      outputs: :class:`StepOutputs` of the real frames as numpy, [count, ...] ([B, count, ...] when batched).
+      capacity: the map capacity after the chunk.
+      seconds: wall time of the chunk's final scan (s); regrow_seconds: of scans redone for capacity;
+      read_seconds: of reading its frames.
+    """
+
+    start: int
+    count: int
+    frames: list
+    state: SlamState
+    outputs: StepOutputs
+    capacity: int
+    seconds: float
+    regrow_seconds: float
+    read_seconds: float
+
+
+def pad_chunk(frames: list[Frame], size: int) -> tuple[Frame, jax.Array]:
+    """Stack ``frames`` without their ground truth and pad to ``size`` with copies of the last one -> (chunk on
+    device, valid mask [size]); a short last chunk then reuses the compiled program."""
+    valid = np.arange(size) < len(frames)
+    padded = list(frames) + [frames[-1]] * (size - len(frames))
+    return to_device(without_ground_truth(stack_frames(padded))), jnp.asarray(valid)
+
+
+@jax.jit
+def _run_batch_chunk(states, frames, valid, configs, intrinsics, poses):
+    return jax.vmap(run_chunk, in_axes=(0, None, None, 0, None, None))(states, frames, valid, configs, intrinsics,
+                                                                        poses)
+
+
+@jax.jit
+def _grow_batch(states, like):
+    return jax.vmap(lambda s: grow_capacity(s, like.shape[0]))(states)
+
+
+def chunk_loop(
+    state: SlamState,
+    read_frame: Callable[[int], Frame],
+    total: int,
+    config: SlamConfig,
+    intrinsics: Intrinsics,
+    *,
+    chunk: int = 8,
+    start: int = 0,
+    batched: bool = False,
+    poses: np.ndarray | None = None,
+    on_grow: Callable[[int, int, int, int], None] | None = None,
+    place: Callable | None = None,
+) -> Iterator[Chunk]:
+    """Run frames ``start .. total-1`` through SLAM from ``state``, ``chunk`` frames per scan; yield a
+    :class:`Chunk` after each.
+
+    ``read_frame(i)`` gives host frame ``i``; its ground-truth pose is blanked before it reaches the core.
+    ``batched``: ``state`` and ``config`` carry a leading batch axis on every leaf (one config per entry, all
+    with the same static fields) and run as one vmapped program over the shared frames.
+    ``poses`` [total, 4, 4] w2c: known poses instead of tracking (mapping-only studies); None tracks.
+    ``on_grow(dropped, first, last, new_capacity)`` is told before a chunk is re-run with a doubled capacity.
+    ``place(tree)``: puts a batched tree on devices (the sweep's sharding); None leaves placement to JAX.
+    """
+    place = place or (lambda tree: tree)
+    done = start
+    capacity = _capacity(state, batched)
+    while done < total:
+        count = min(chunk, total - done)
+        t0 = time.perf_counter()
+        host = [read_frame(i) for i in range(done, done + count)]
+        frames, valid = pad_chunk(host, chunk)
+        chunk_poses = None
+        if poses is not None:
+            chunk_poses = np.asarray(poses[done:done + count], np.float32)
+            chunk_poses = jnp.asarray(np.concatenate([chunk_poses, np.repeat(chunk_poses[-1:], chunk - count, 0)]))
+        read_s = time.perf_counter() - t0
+        regrow_s = 0.0
+        while True:
+            t0 = time.perf_counter()
+            if batched:
+                new_state, out = _run_batch_chunk(state, frames, valid, config, intrinsics, chunk_poses)
+            else:
+                new_state, out = run_chunk(state, frames, valid, config, intrinsics, chunk_poses)
+            out = jax.device_get(out)
+            elapsed = time.perf_counter() - t0
+            dropped = int(np.sum(np.asarray(out.dropped)[..., :count]))
+            if dropped == 0:
+                break
+            regrow_s += elapsed
+            capacity *= 2
+            if on_grow is not None:
+                on_grow(dropped, done, done + count - 1, capacity)
+            if batched:
+                state = place(_grow_batch(state, jnp.zeros(capacity)))
+            else:
+                state = grow_capacity(state, capacity)
+        state = new_state
+        # Per-frame fields are [C, ...], or [B, C, ...] after vmap over the scan.
+        out = jax.tree_util.tree_map(lambda x: np.asarray(x)[:, :count] if batched else np.asarray(x)[:count], out)
+        yield Chunk(done, count, host, state, out, capacity, elapsed, regrow_s, read_s)
+        done += count
+
+
+def _capacity(state: SlamState, batched: bool) -> int:
+    return int(state.gaussians.means.shape[1 if batched else 0])
+
+
+def concat_outputs(chunks: list[StepOutputs], batched: bool = False) -> StepOutputs:
+    """Per-chunk outputs joined along the frame axis."""
+    axis = 1 if batched else 0
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=axis), *chunks)
+
+
+# ------------------------------------------------------------------------------------------- in memory
+
+
+class RunResult(NamedTuple):
+    """What :func:`run` returns: w2c [T, 4, 4] estimated poses (the outputs' ``w2c``), outputs
+    (:class:`StepOutputs`, numpy, [T, ...]) and the final :class:`SlamState`."""
+
+    w2c: np.ndarray
+    outputs: StepOutputs
+    state: SlamState
+
+
+def _frame_list(frames) -> list[Frame]:
+    if isinstance(frames, Frame):
+        n = np.shape(frames.index)[0] if np.ndim(frames.index) else None
+        if n is None:
+            return [jax.tree_util.tree_map(np.asarray, frames)]
+        host = jax.tree_util.tree_map(np.asarray, frames)
+        return [jax.tree_util.tree_map(lambda x, i=i: x[i], host) for i in range(n)]
+    return [jax.tree_util.tree_map(np.asarray, f) for f in frames]
+
+
+def run(
+    frames,
+    config: SlamConfig,
+    intrinsics: Intrinsics,
+    *,
+    seed: int = 0,
+    poses=None,
+    chunk: int = 8,
+    capacity: int | None = None,
+) -> RunResult:
+    """SLAM over ``frames`` in memory, no I/O: the same chunk loop (and so the same result) as ``gsjax run``.
+
+    Args:
+      frames: a stacked :class:`Frame` ([T, ...] leaves), a sequence of frames, or a :class:`gsjax.data.Sequence`.
+        Their ground-truth poses are ignored.
+      config: the SLAM config; intrinsics: the camera at the frames' resolution.
+      seed: PRNG seed (mapping-window and pixel sampling).
+      poses: optional [T, 4, 4] world-to-camera poses to map with instead of tracking.
+      chunk: frames per jitted scan; capacity: initial map capacity (default 2 H W, grown as needed).
+    """
+    if hasattr(frames, "read_host"):
+        read, total = frames.read_host, len(frames)
+    else:
+        items = _frame_list(frames)
+        read, total = items.__getitem__, len(items)
+    if total < 1:
+        raise ValueError("gsjax.slam.run needs at least one frame")
+    if poses is not None and np.shape(poses) != (total, 4, 4):
+        raise ValueError(f"poses must be [T, 4, 4] = [{total}, 4, 4], got {np.shape(poses)}")
+    height, width = intrinsics.height, intrinsics.width
+    state = initial_state(capacity or 2 * height * width, height, width,
+                          keyframe_capacity_for(total, config.keyframe_every), total, seed)
+    parts, chunk_state = [], state
+    for done in chunk_loop(state, read, total, config, intrinsics, chunk=chunk, poses=poses):
+        parts.append(done.outputs)
+        chunk_state = done.state
+    outputs = concat_outputs(parts)
+    return RunResult(outputs.w2c, outputs, chunk_state)
+
+
+# ------------------------------------------------------------------------------------------- batches
+
+
+def stack_trees(trees: list):
+    """Trees of one structure (configs with the same static fields, states of one shape) stacked on a new leading
+    axis; raises ValueError when their static fields differ."""
+    structure = jax.tree_util.tree_structure(trees[0])
+    for tree in trees[1:]:
+        if jax.tree_util.tree_structure(tree) != structure:
+            raise ValueError("stack_trees: the trees differ in structure or static fields")
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+
+
+def unstack_tree(tree, index: int):
+    """Entry ``index`` of a batched tree."""
+    return jax.tree_util.tree_map(lambda x: x[index], tree)
+
+
+def static_key(config: SlamConfig):
+    """What decides a config's compiled program: its tree structure, which holds every static field."""
+    return jax.tree_util.tree_structure(config)

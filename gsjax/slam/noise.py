@@ -1,0 +1,38 @@
+"""Noise injection for robustness studies (:class:`gsjax.slam.config.NoiseConfig`): pure functions of a key.
+
+The keys are folded from the step's key with fixed stream numbers, so the step's other random choices (window
+and pixel sampling) are the same with or without noise, and zero noise leaves every value unchanged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from gsjax.data.frame import Frame
+from gsjax.gaussians import Gaussians
+from gsjax.slam.config import NoiseConfig
+
+NOISE_STREAM = 1_000_003  # fold_in stream of the depth noise; the map noise uses the next one
+
+MIN_NOISY_DEPTH_M = 1e-3  # noisy depth stays valid (> 0) where the input was valid
+
+
+def add_depth_noise(frame: Frame, noise: NoiseConfig, key: jax.Array) -> Frame:
+    """``frame`` with N(0, (depth_cm / 100)^2) m added to each valid depth pixel (kept valid: at least 1 mm, or the
+    input where that is less; invalid pixels stay 0)."""
+    depth = frame.depth
+    sample = jax.random.normal(key, depth.shape, depth.dtype) * (noise.depth_cm / 100.0)
+    floor = jnp.minimum(depth, MIN_NOISY_DEPTH_M)  # so zero noise returns the input exactly
+    noisy = jnp.where(depth > 0, jnp.maximum(depth + sample, floor), 0.0)
+    return dataclasses.replace(frame, depth=noisy)
+
+
+def perturb_map(gaussians: Gaussians, noise: NoiseConfig, key: jax.Array) -> Gaussians:
+    """``gaussians`` with N(0, (map_means_cm / 100)^2) m on each mean and N(0, map_rgb^2) on each colour channel."""
+    key_means, key_rgb = jax.random.split(key)
+    means = gaussians.means + jax.random.normal(key_means, gaussians.means.shape) * (noise.map_means_cm / 100.0)
+    rgb = gaussians.rgb + jax.random.normal(key_rgb, gaussians.rgb.shape) * noise.map_rgb
+    return dataclasses.replace(gaussians, means=means, rgb=rgb)
