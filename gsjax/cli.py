@@ -180,20 +180,7 @@ def _add_run(sub) -> None:
         "--tracking.iters 60 --mapping.lr_means 2e-3 --cbknn.params.alpha 0.3 (see gsjax/slam/config.py).",
         parents=[COMMON],
     )
-    p.add_argument("--dataset", choices=DATASETS + ("synthetic",), required=True)
-    p.add_argument("--path", type=Path, default=None, help="dataset directory (not needed for synthetic)")
-    p.add_argument("--out", type=Path, required=True, help="output directory")
-    p.add_argument("--preset", choices=PRESETS, default="cpu", help="configuration preset (default cpu)")
-    p.add_argument("--cbknn", choices=CBKNN_MODES, default="off", help="CB-KNN mode (default off = SplaTAM)")
-    p.add_argument("--max-frames", type=int, default=None)
-    p.add_argument("--stride", type=int, default=1)
-    p.add_argument("--downscale", type=int, default=None,
-                   help="integer image reduction (default: to about 80 px wide for the cpu preset, else 1)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--intrinsics", type=_pinhole, default=None, metavar="FX,FY,CX,CY",
-                   help="the camera in pixels at the stored image size, overriding the dataset's own")
-    p.add_argument("--depth-scale", type=_depth_scale, default=None, metavar="S",
-                   help="stored depth units per metre, overriding the dataset's (TUM 5000, 7-Scenes 1000)")
+    _add_sequence_flags(p)
     again = p.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     again.add_argument("--overwrite", action="store_true",
@@ -201,9 +188,27 @@ def _add_run(sub) -> None:
     p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk and checkpoint (default 8)")
     p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_run, accepts_overrides=True)
+
+
+def _add_sequence_flags(p) -> None:
+    """The flags that choose the sequence, its camera and the config (shared by run, sweep and landscape)."""
+    p.add_argument("--dataset", choices=DATASETS + ("synthetic",), required=True)
+    p.add_argument("--path", type=Path, default=None, help="dataset directory (not needed for synthetic)")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--preset", choices=PRESETS, default="cpu", help="configuration preset (default cpu)")
+    p.add_argument("--cbknn", choices=CBKNN_MODES, default="off", help="CB-KNN mode (default off = SplaTAM)")
+    p.add_argument("--max-frames", type=int, default=None)
+    p.add_argument("--stride", type=int, default=1, help="use every N-th frame (faster motion)")
+    p.add_argument("--downscale", type=int, default=None,
+                   help="integer image reduction (default: to about 80 px wide for the cpu preset, else 1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--intrinsics", type=_pinhole, default=None, metavar="FX,FY,CX,CY",
+                   help="the camera in pixels at the stored image size, overriding the dataset's own")
+    p.add_argument("--depth-scale", type=_depth_scale, default=None, metavar="S",
+                   help="stored depth units per metre, overriding the dataset's (TUM 5000, 7-Scenes 1000)")
     p.add_argument("--synthetic-noise", action="store_true",
                    help="synthetic dataset only: Kinect-like sensor effects (depth noise, holes, colour noise, blur)")
-    p.set_defaults(func=_cmd_run, accepts_overrides=True)
 
 
 def _pinhole(text: str) -> tuple[float, float, float, float]:
@@ -297,18 +302,14 @@ def _open_run_sequence(args):
 
 
 def _cmd_run(args) -> int:
-    import logging
-
     from gsjax.config_text import apply_overrides
     from gsjax.io.run_dir import check_run_dir
     from gsjax.run_outputs import summary_lines
     from gsjax.runner import RunOptions, run_slam
     from gsjax.slam.presets import PRESET_WIDTH, preset, with_cbknn_mode
 
-    logging.basicConfig(level=logging.WARNING, format="%(message)s")
-    logging.getLogger("gsjax").setLevel(logging.INFO)
-    for noisy in ("absl", "orbax", "jax"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
+    _quiet_logs()
+
     def configure(width=None):  # the preset at the working width, then the overrides as given
         return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)
 
@@ -335,10 +336,79 @@ def _cmd_run(args) -> int:
     return 0
 
 
+def _add_sweep(sub) -> None:
+    p = sub.add_parser(
+        "sweep",
+        help="a grid of configs on one sequence as one vmapped program (sweep.csv, sweep.md, sweep.png, runs/NNN)",
+        description="Run a grid of configs on one sequence. --grid FIELD=V1,V2 sets a config field by its dotted name "
+        "(e.g. --grid cbknn.params.alpha=0.1,0.2 --grid cbknn.params.k0=4,8); the grid is the product of the axes "
+        "times --seeds run seeds. Configs that differ in traced fields run as one compiled program (jax.vmap over "
+        "the stacked configs, the batch sharded over the devices); a static field gives one program per value. "
+        "Other config fields can be overridden as in gsjax run (--tracking.iters 60).",
+        parents=[COMMON],
+    )
+    _add_sequence_flags(p)
+    p.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2",
+                   help="a grid axis: a config field's dotted name and its values (repeat for more axes)")
+    p.add_argument("--seeds", type=int, default=1, help="run seeds per config: --seed .. --seed + N - 1 (default 1)")
+    p.add_argument("--batch", type=int, default=None,
+                   help="configs per program call, to bound memory (default: all configs of a program at once)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the previous sweep in --out (removes gsjax's sweep outputs there, nothing else)")
+    p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk (default 8)")
+    p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_sweep, accepts_overrides=True)
+
+
+def _cmd_sweep(args) -> int:
+    from gsjax.config_text import apply_overrides
+    from gsjax.io.run_dir import SWEEP_OUTPUTS, check_run_dir
+    from gsjax.slam.presets import preset, with_cbknn_mode
+    from gsjax.sweep import SweepOptions, expand_grid, maybe_initialize_distributed, parse_grid, run_sweep
+
+    _quiet_logs()
+    if args.seeds < 1:
+        raise UserError(f"--seeds must be >= 1, got {args.seeds}")
+    axes = [parse_grid(text) for text in args.grid]
+
+    def configure(width=None):
+        return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)
+
+    expand_grid(configure(), axes, [args.seed])  # bad overrides and grid values are reported before reading data
+    options = SweepOptions(out=args.out, chunk=args.chunk, batch=args.batch, eval_every=args.eval_every,
+                           progress=not args.no_progress, overwrite=args.overwrite)
+    check_run_dir(args.out, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
+    maybe_initialize_distributed()
+    (sequence, factor), input_warnings = _dataset_warnings(lambda: _open_run_sequence(args))
+    describe = dict(dataset=args.dataset, path=str(args.path) if args.path else None, preset=args.preset,
+                    cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides,
+                    intrinsics=list(args.intrinsics) if args.intrinsics else None, depth_scale=args.depth_scale,
+                    sequence=sequence.name)
+    seeds = list(range(args.seed, args.seed + args.seeds))
+    rows = run_sweep(sequence, configure(sequence.intrinsics.width), axes, seeds, options, describe=describe,
+                     input_warnings=tuple(input_warnings))
+    best = min((r for r in rows if r["ate_rmse_cm"] is not None), key=lambda r: r["ate_rmse_cm"], default=None)
+    if best is not None:
+        chosen = ", ".join(f"{k}={best[k]}" for k in (a.field for a in axes)) or "the base config"
+        print(f"lowest ATE {best['ate_rmse_cm']:.3f} cm: {chosen}, seed {best['seed']} ({best['run']})")
+    print(f"outputs in {args.out.resolve()}: sweep.csv sweep.md sweep.png sweep.json runs/")
+    return 0
+
+
+def _quiet_logs() -> None:
+    import logging
+
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    logging.getLogger("gsjax").setLevel(logging.INFO)
+    for noisy in ("absl", "orbax", "jax"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="gsjax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_run, _add_eval, _add_synth):
+    for add in (_add_run, _add_sweep, _add_eval, _add_synth):
         add(sub)
     return parser
 

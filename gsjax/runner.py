@@ -33,6 +33,7 @@ from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
 from gsjax.io.run_dir import check_run_dir, clear_previous_run
+from gsjax.progress import Progress
 from gsjax.run_outputs import write_outputs
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import chunk_loop
@@ -79,32 +80,6 @@ class RunOptions:
 
 
 # ------------------------------------------------------------------------------------------------ the run
-
-
-class _Progress:
-    """A tqdm bar over frames (or nothing), updated once per chunk."""
-
-    def __init__(self, total: int, initial: int, enabled: bool):
-        self._bar = None
-        if enabled:
-            from tqdm import tqdm
-
-            self._bar = tqdm(total=total, initial=initial, unit="frame", dynamic_ncols=True)
-
-    def update(self, frames: int, **fields) -> None:
-        if self._bar is not None:
-            self._bar.set_postfix(fields, refresh=False)
-            self._bar.update(frames)
-
-    def write(self, message: str, file=None) -> None:
-        if self._bar is not None:
-            self._bar.write(message, file=file)
-        else:
-            print(message, file=file, flush=True)
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
 
 
 def _outputs_to_lists(outputs: StepOutputs, count: int) -> dict:
@@ -215,7 +190,7 @@ def run_slam(
     atomic_write_json(out / "config.json", record)
 
     _, gt_c2w, gt_valid = sequence.gt_trajectory()
-    progress = _Progress(total, done, options.progress)
+    progress = Progress(total, done, options.progress)
 
     def warn(message: str) -> None:
         frame_warnings.append(message)

@@ -6,6 +6,7 @@ Each function builds its own Figure, renders it to PNG in memory and writes the 
 from __future__ import annotations
 
 import io
+import math
 import os
 from pathlib import Path
 
@@ -109,4 +110,50 @@ def plot_errors_over_time(
         ax.legend(loc="best", fontsize=8)
     if title:
         ax.set_title(title)
+    return _save(fig, path, dpi)
+
+
+def plot_sweep_heatmap(path: str | os.PathLike, rows: list[dict], fields: list[str], metric: str = "ate_rmse_cm",
+                       title: str | None = None, dpi: int = 120) -> Path:
+    """Heat map of ``metric`` (the mean over the rows of a cell, i.e. over seeds) over the first two swept ``fields`` (x: first, y: second), one
+    panel per combination of the other fields' values; the cells are annotated (a blank cell: no value)."""
+    x_field = fields[0] if fields else None
+    y_field = fields[1] if len(fields) > 1 else None
+    rest = fields[2:]
+
+    def values_of(field):
+        return list(dict.fromkeys(str(r[field]) for r in rows)) if field else [""]
+
+    xs, ys = values_of(x_field), values_of(y_field)
+    panels = list(dict.fromkeys(tuple(str(r[f]) for f in rest) for r in rows)) or [()]
+    fig = Figure(figsize=(min(4 + 0.9 * len(xs), 12) * min(len(panels), 3) / 1.5, 1.5 + 0.6 * len(ys)
+                          * math.ceil(len(panels) / 3)))
+    finite = [float(r[metric]) for r in rows if r[metric] is not None and np.isfinite(float(r[metric]))]
+    vmin, vmax = (min(finite), max(finite)) if finite else (0.0, 1.0)
+    for n, panel in enumerate(panels):
+        ax = fig.add_subplot(math.ceil(len(panels) / 3), min(len(panels), 3), n + 1)
+        grid = np.full((len(ys), len(xs)), np.nan)
+        for j, yv in enumerate(ys):
+            for i, xv in enumerate(xs):
+                picked = [float(r[metric]) for r in rows if r[metric] is not None
+                          and (x_field is None or str(r[x_field]) == xv) and (y_field is None or str(r[y_field]) == yv)
+                          and tuple(str(r[f]) for f in rest) == panel]
+                if picked:
+                    grid[j, i] = float(np.mean(picked))
+        image = ax.imshow(grid, cmap="viridis_r", vmin=vmin, vmax=vmax, aspect="auto", origin="lower")
+        for j in range(len(ys)):
+            for i in range(len(xs)):
+                if np.isfinite(grid[j, i]):
+                    light = (grid[j, i] - vmin) < 0.5 * (vmax - vmin)  # viridis_r is light at low values
+                    ax.text(i, j, f"{grid[j, i]:.3g}", ha="center", va="center", fontsize=7,
+                            color="black" if light else "white")
+        ax.set_xticks(range(len(xs)), xs, fontsize=7)
+        ax.set_yticks(range(len(ys)), ys, fontsize=7)
+        ax.set_xlabel(x_field or "")
+        ax.set_ylabel(y_field or "")
+        if rest:
+            ax.set_title(", ".join(f"{f}={v}" for f, v in zip(rest, panel)), fontsize=8)
+        fig.colorbar(image, ax=ax, label=metric)
+    if title:
+        fig.suptitle(title)
     return _save(fig, path, dpi)

@@ -20,16 +20,22 @@ class RunDirError(ValueError):
     """The output directory cannot be used as asked; the message says why and what to do."""
 
 
-def previous_outputs(out: Path) -> list[str]:
-    """The names of gsjax outputs present in ``out`` (empty when it is missing or holds none)."""
-    return [name for name in RUN_OUTPUTS if (Path(out) / name).exists()] if Path(out).is_dir() else []
+# ... of a sweep and of a landscape.
+SWEEP_OUTPUTS = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json", "runs")
+LANDSCAPE_OUTPUTS = ("landscape.json", "landscape.png")
 
 
-def check_run_dir(out: Path, *, resume: bool = False, overwrite: bool = False) -> None:
+def previous_outputs(out: Path, outputs: tuple[str, ...] = RUN_OUTPUTS) -> list[str]:
+    """The names of gsjax ``outputs`` present in ``out`` (empty when it is missing or holds none)."""
+    return [name for name in outputs if (Path(out) / name).exists()] if Path(out).is_dir() else []
+
+
+def check_run_dir(out: Path, *, resume: bool = False, overwrite: bool = False,
+                  outputs: tuple[str, ...] = RUN_OUTPUTS) -> None:
     """Raise RunDirError (naming ``--out``) unless a run may write to ``out``; writes nothing.
 
     Usable: a missing directory whose nearest existing parent is a writable directory; an empty writable
-    directory; a directory holding a previous run when ``resume`` or ``overwrite`` is given.
+    directory; a directory holding a previous run (any of ``outputs``) when ``resume`` or ``overwrite`` is given.
     """
     out = Path(out)
     if resume and overwrite:
@@ -47,20 +53,21 @@ def check_run_dir(out: Path, *, resume: bool = False, overwrite: bool = False) -
         return
     if not os.access(out, os.W_OK | os.X_OK):
         raise RunDirError(f"--out {out} is not writable")
-    present = previous_outputs(out)
+    present = previous_outputs(out, outputs)
     if present:
         if not (resume or overwrite):
             listed = ", ".join(name + ("/" if (out / name).is_dir() else "") for name in present)
-            raise RunDirError(f"--out {out} holds a previous run ({listed}); nothing was changed: pass --resume to "
-                              "continue it, --overwrite to replace it, or choose another --out")
+            again = "--resume to continue it, " if outputs == RUN_OUTPUTS else ""
+            raise RunDirError(f"--out {out} holds a previous run ({listed}); nothing was changed: pass {again}"
+                              "--overwrite to replace it, or choose another --out")
         return
     if any(out.iterdir()):
         raise RunDirError(f"--out {out} is not empty and holds no gsjax run; choose a new or empty directory")
 
 
-def clear_previous_run(out: Path) -> list[str]:
-    """Remove gsjax's own outputs from ``out`` (``--overwrite``); other files stay. Returns the names removed."""
-    removed = previous_outputs(out)
+def clear_previous_run(out: Path, outputs: tuple[str, ...] = RUN_OUTPUTS) -> list[str]:
+    """Remove gsjax's own ``outputs`` from ``out`` (``--overwrite``); other files stay. Returns the names removed."""
+    removed = previous_outputs(out, outputs)
     for name in removed:
         path = Path(out) / name
         if path.is_dir() and not path.is_symlink():

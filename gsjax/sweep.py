@@ -1,0 +1,310 @@
+"""``gsjax sweep``: a grid of configs over one sequence, run as one vmapped program per static signature.
+
+The grid is the product of ``--grid FIELD=V1,V2`` axes times the run seeds. Configs that differ only in traced
+fields (learning rates, loss weights, CB-KNN alpha / K0 / beta, noise levels, ...) share one compiled program:
+:func:`gsjax.slam.driver.chunk_loop` runs ``jax.vmap`` of the whole tracking + mapping scan over a batch of
+stacked configs and initial states (``--batch B`` configs at a time, to bound memory), with the batch axis
+sharded over every device in a 1-D mesh. A static field in the grid (an iteration count, a mode) gives one program
+per value.
+
+Multi-host: start every host with the same command after ``jax.distributed.initialize()`` (e.g. set
+``GSJAX_DISTRIBUTED=1`` and JAX's coordinator variables, see :func:`maybe_initialize_distributed`); the mesh then
+spans every process's devices, each process places its own shards, results are gathered to every process and
+process 0 writes the outputs. (Single-host use is what the tests exercise.)
+
+Outputs in ``DIR``: ``sweep.csv`` and ``sweep.md`` (a row per config), ``sweep.png`` (ATE heat map), ``sweep.json``
+(the grid, programs and timings) and ``runs/NNN/`` per config (``trajectory.txt``, ``metrics.json``, ``config.json``
+and the other outputs of ``gsjax run``).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import itertools
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from gsjax.config_text import apply_overrides, config_to_dict
+from gsjax.data.sequence import Sequence
+from gsjax.io.atomic import atomic_write_bytes, atomic_write_json
+from gsjax.io.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run
+from gsjax.progress import Progress
+from gsjax.slam.config import SlamConfig
+from gsjax.slam.driver import chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
+from gsjax.slam.state import initial_state, keyframe_capacity_for
+
+CSV_METRICS = ("seed", "ate_rmse_cm", "ate_splatam_cm", "psnr_db", "depth_l1_cm", "seconds", "run")
+
+
+@dataclasses.dataclass(frozen=True)
+class GridAxis:
+    """One ``--grid FIELD=V1,V2`` axis: a config field's dotted name and its values as given."""
+
+    field: str
+    values: tuple[str, ...]
+
+
+def parse_grid(text: str) -> GridAxis:
+    """``FIELD=V1,V2[,...]`` -> GridAxis; ValueError naming ``--grid`` on a malformed axis."""
+    field, sep, values = text.partition("=")
+    items = tuple(v.strip() for v in values.split(",") if v.strip())
+    if not sep or not field.strip() or not items:
+        raise ValueError(f"--grid {text!r}: expected FIELD=V1,V2,... (e.g. cbknn.params.alpha=0.1,0.2)")
+    if len(set(items)) != len(items):
+        raise ValueError(f"--grid {text!r}: a value is repeated")
+    return GridAxis(field.strip(), items)
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepPoint:
+    """One config of the grid: ``index`` (its ``runs/NNN``), the swept ``values`` by field, the ``seed``."""
+
+    index: int
+    values: dict
+    seed: int
+    config: SlamConfig
+
+
+def expand_grid(base: SlamConfig, axes: list[GridAxis], seeds: list[int]) -> list[SweepPoint]:
+    """The product of the axes (first axis slowest) times the seeds, each value applied to ``base`` as an override
+    (so read and validated as ``gsjax run --FIELD V`` would be)."""
+    fields = [axis.field for axis in axes]
+    if len(set(fields)) != len(fields):
+        raise ValueError("--grid: a field appears in more than one axis")
+    points = []
+    for combo in itertools.product(*(axis.values for axis in axes)):
+        values = dict(zip(fields, combo))
+        try:
+            config = apply_overrides(base, values)
+        except ValueError as err:
+            raise ValueError(f"--grid: {err}") from None
+        for seed in seeds:  # seeds innermost: a config's seeds are adjacent rows
+            points.append(SweepPoint(len(points), values, seed, config))
+    return points
+
+
+def group_by_program(points: list[SweepPoint]) -> list[list[SweepPoint]]:
+    """Points grouped by their compiled program (same static fields), in grid order."""
+    groups: dict = {}
+    for point in points:
+        groups.setdefault(static_key(point.config), []).append(point)
+    return list(groups.values())
+
+
+def static_fields(base: SlamConfig, axes: list[GridAxis]) -> list[str]:
+    """The swept fields whose values change the compiled program (static fields)."""
+    return [axis.field for axis in axes
+            if len({static_key(apply_overrides(base, {axis.field: v})) for v in axis.values}) > 1]
+
+
+# ------------------------------------------------------------------------------------------ devices
+
+
+def maybe_initialize_distributed() -> None:
+    """``jax.distributed.initialize()`` when ``GSJAX_DISTRIBUTED=1`` (its coordinator, process count and id come
+    from JAX's own environment variables or the cluster's, e.g. SLURM)."""
+    if os.environ.get("GSJAX_DISTRIBUTED") == "1":
+        jax.distributed.initialize()
+
+
+def batch_mesh():
+    """A 1-D mesh named ``batch`` over every device (all processes)."""
+    return jax.sharding.Mesh(np.asarray(jax.devices()), ("batch",))
+
+
+def place_batch(tree, mesh):
+    """A batched tree laid out along its leading axis over ``mesh`` (each process fills its own shards)."""
+    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
+
+    def put(x):
+        x = np.asarray(x)
+        return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
+
+    return jax.tree_util.tree_map(put, tree)
+
+
+def to_host(tree):
+    """A (possibly multi-process) tree as numpy on every process."""
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        return multihost_utils.process_allgather(tree, tiled=True)
+    return jax.device_get(tree)
+
+
+def batch_size(requested: int | None, configs: int, devices: int) -> int:
+    """Configs per batch: ``requested`` (default: all), rounded up to a multiple of the device count."""
+    size = min(requested or configs, configs)
+    return devices * math.ceil(size / devices)
+
+
+# ------------------------------------------------------------------------------------------ the sweep
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepOptions:
+    """Shell options of a sweep: ``out`` directory, frames per ``chunk``, ``batch`` configs per program call
+    (None: all), ``eval_every`` and ``samples`` as in ``gsjax run``, ``progress`` bar, ``overwrite``."""
+
+    out: Path
+    chunk: int = 8
+    batch: int | None = None
+    eval_every: int = 5
+    samples: int = 1
+    progress: bool = True
+    overwrite: bool = False
+
+    def __post_init__(self):
+        for name in ("chunk", "eval_every", "samples"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if self.batch is not None and self.batch < 1:
+            raise ValueError(f"--batch must be >= 1, got {self.batch}")
+
+
+def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: list[int], options: SweepOptions,
+              *, describe: dict | None = None, input_warnings: tuple[str, ...] = (), say=print) -> list[dict]:
+    """Run the grid of ``axes`` x ``seeds`` over ``base`` on ``sequence``; write ``runs/NNN`` per config and the
+    sweep tables; return the rows (one dict per config, the columns of ``sweep.csv``)."""
+    from gsjax.run_outputs import write_outputs
+    from gsjax.runner import RunOptions, _camera_record
+
+    points = expand_grid(base, axes, seeds)
+    out = Path(options.out)
+    check_run_dir(out, overwrite=options.overwrite, outputs=SWEEP_OUTPUTS)
+    sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
+    if options.overwrite:
+        clear_previous_run(out, SWEEP_OUTPUTS)
+    writer = jax.process_index() == 0
+    out.mkdir(parents=True, exist_ok=True)
+    k = sequence.intrinsics
+    height, width, total = k.height, k.width, len(sequence)
+    mesh = batch_mesh()
+    devices = mesh.devices.size
+    groups = group_by_program(points)
+    statics = static_fields(base, axes)
+    if statics:
+        say(f"gsjax sweep: {', '.join(statics)} {'is' if len(statics) == 1 else 'are'} static (compile-time): "
+            f"one compiled program per value, {len(groups)} programs")
+    batches = []
+    for group in groups:
+        size = batch_size(options.batch, len(group), devices)
+        batches += [(group[i:i + size], size) for i in range(0, len(group), size)]
+    say(f"gsjax sweep: {len(points)} configs in {len(groups)} program(s), {len(batches)} batch(es) of up to "
+        f"{max(s for _, s in batches)} on {devices} device(s), {total} frames each")
+    progress = Progress(total * len(batches), 0, options.progress)
+    camera = _camera_record(sequence)
+    rows: list[dict] = []
+    timings = dict(slam_s=0.0, regrow_s=0.0, read_frames_s=0.0, outputs_s=0.0, first_chunk_s=[])
+    t_start = time.perf_counter()
+    try:
+        for number, (batch, size) in enumerate(batches):
+            padded = batch + [batch[-1]] * (size - len(batch))  # repeats keep the program's batch shape
+            kf_capacity = keyframe_capacity_for(total, padded[0].config.keyframe_every)
+            states = stack_trees([initial_state(2 * height * width, height, width, kf_capacity, total, p.seed)
+                                  for p in padded])
+            configs = stack_trees([p.config for p in padded])
+            states, configs = place_batch(states, mesh), place_batch(configs, mesh)
+
+            def on_grow(dropped, first, last, capacity, number=number):
+                progress.write(f"capacity: batch {number + 1}: {dropped} new Gaussians found no free slot at frames "
+                               f"{first}-{last}; growing every map of the batch to {capacity} slots and re-running "
+                               "the chunk")
+
+            parts, slam_s, regrow_s, first = [], 0.0, 0.0, None
+            for chunk in chunk_loop(states, sequence.read_host, total, configs, k, chunk=options.chunk,
+                                    batched=True, on_grow=on_grow, place=lambda t: place_batch(t, mesh)):
+                parts.append(chunk.outputs)
+                states = chunk.state
+                slam_s += chunk.seconds
+                regrow_s += chunk.regrow_seconds
+                timings["read_frames_s"] += chunk.read_seconds
+                first = chunk.seconds if first is None else first
+                progress.update(chunk.count, batch=f"{number + 1}/{len(batches)}")
+            timings["slam_s"] += slam_s
+            timings["regrow_s"] += regrow_s
+            timings["first_chunk_s"].append(first)
+            outputs = concat_outputs(parts, batched=True)
+            state_devices = len(states.gaussians.means.sharding.device_set)
+            host_states = to_host(states)
+            t0 = time.perf_counter()
+            for i, point in enumerate(batch):
+                run_dir = out / "runs" / f"{point.index:03d}"
+                run_outputs = {name: np.asarray(v)[i].tolist() for name, v in outputs._asdict().items()}
+                record = dict(describe or {}, frames=total, width=width, height=height, chunk=options.chunk,
+                              seed=point.seed, camera=camera, config=config_to_dict(point.config),
+                              sweep=dict(values=point.values, batch=number, batch_size=size))
+                seconds = (slam_s + regrow_s) / len(batch)
+                run_timings = dict(slam_s=seconds, batch_slam_s=slam_s, batch_regrow_s=regrow_s, batch_size=size)
+                if writer:
+                    run_dir.mkdir(parents=True, exist_ok=True)
+                    atomic_write_json(run_dir / "config.json", record)
+                    metrics = write_outputs(sequence, point.config,
+                                            RunOptions(out=run_dir, chunk=options.chunk, seed=point.seed,
+                                                       eval_every=options.eval_every, samples=options.samples,
+                                                       progress=False),
+                                            unstack_tree(host_states, i), run_outputs, run_timings, record,
+                                            list(input_warnings))
+                    rows.append(_row(point, metrics, seconds, run_dir.relative_to(out)))
+            timings["outputs_s"] += time.perf_counter() - t0
+    finally:
+        progress.close()
+    rows.sort(key=lambda r: r["run"])
+    if writer:
+        fields = [axis.field for axis in axes]
+        _write_tables(out, rows, fields)
+        from gsjax.io.plots import plot_sweep_heatmap
+
+        plot_sweep_heatmap(out / "sweep.png", rows, fields, title=f"{sequence.name}: ATE RMSE (cm), mean over {len(seeds)} seed(s)")
+        atomic_write_json(out / "sweep.json", dict(
+            describe or {}, grid={a.field: list(a.values) for a in axes}, seeds=sorted({p.seed for p in points}),
+            configs=len(points), programs=len(groups), static_fields=statics, batches=len(batches),
+            devices=devices, state_devices=state_devices, frames=total, width=width, height=height, wall_s=time.perf_counter() - t_start,
+            timings=timings, warnings=list(input_warnings)))
+    return rows
+
+
+def _row(point: SweepPoint, metrics: dict, seconds: float, run: Path) -> dict:
+    traj = metrics.get("trajectory") or {}
+    render = metrics["render"]["mean"] or {}
+    row = dict(point.values)
+    row.update(seed=point.seed, ate_rmse_cm=traj.get("ate_rmse_c2w_cm"), ate_splatam_cm=traj.get(
+        "ate_splatam_mean_w2c_cm"), psnr_db=render.get("psnr_db"), depth_l1_cm=render.get("depth_l1_cm"),
+        seconds=seconds, run=run.as_posix())
+    return row
+
+
+def _format(value) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+
+
+def _write_tables(out: Path, rows: list[dict], fields: list[str]) -> None:
+    columns = [*fields, *CSV_METRICS]
+    buffer = io.StringIO()
+    table = csv.writer(buffer, lineterminator="\n")
+    table.writerow(columns)
+    for row in rows:
+        table.writerow([_format(row[c]) for c in columns])
+    atomic_write_bytes(out / "sweep.csv", buffer.getvalue().encode())
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    for row in rows:
+        lines.append("| " + " | ".join(_format(row[c]) for c in columns) + " |")
+    atomic_write_bytes(out / "sweep.md", ("\n".join(lines) + "\n").encode())
+
+
+def read_sweep_csv(path: Path) -> list[dict]:
+    """The rows of a ``sweep.csv`` (values as strings)."""
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
