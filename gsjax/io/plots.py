@@ -157,3 +157,34 @@ def plot_sweep_heatmap(path: str | os.PathLike, rows: list[dict], fields: list[s
     if title:
         fig.suptitle(title)
     return _save(fig, path, dpi)
+
+
+def plot_landscape(path: str | os.PathLike, document: dict, title: str | None = None, dpi: int = 120) -> Path:
+    """Loss (top row) and gradient (bottom row) per axis of a ``landscape.json`` document, one line per CB-KNN mode,
+    each mode's basin of convergence marked by dashed lines at +- its width."""
+    axes = list(document["axes"])
+    fig = Figure(figsize=(4 * len(axes), 6), layout="constrained")
+    colours = {"off": "tab:blue", "paper": "tab:orange"}
+    for i, name in enumerate(axes):
+        entry = document["axes"][name]
+        offsets = np.asarray(entry["offsets"])
+        for row, key in enumerate(("loss", "grad")):
+            ax = fig.add_subplot(2, len(axes), row * len(axes) + i + 1)
+            for mode, colour in colours.items():
+                if mode not in entry:
+                    continue
+                ax.plot(offsets, entry[mode][key], color=colour, linewidth=1.2, marker=".", markersize=3,
+                        label=f"{mode} (basin {entry[mode]['basin']:g} {entry['unit']})")
+                if row == 0 and entry[mode]["basin"] > 0:
+                    for side in (-1, 1):
+                        ax.axvline(side * entry[mode]["basin"], color=colour, linestyle="--", linewidth=0.8)
+            if key == "grad":
+                ax.axhline(0.0, color="0.5", linewidth=0.5)
+            ax.set_xlabel(f"{name} ({entry['unit']})")
+            ax.set_ylabel("tracking loss" if key == "loss" else f"d loss / d {name} (per {entry['unit']})")
+            ax.grid(True, linewidth=0.3)
+            if row == 0:
+                ax.legend(loc="best", fontsize=7)
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path, dpi)

@@ -12,6 +12,7 @@ unconstrained and exact on SE(3). Two optimisers:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
@@ -35,7 +36,16 @@ class TrackResult(NamedTuple):
     nonfinite: jax.Array
 
 
-def track(
+class TrackingObjective(NamedTuple):
+    """The tracker's objective around ``w2c_init``: ``view_at(delta)`` renders at ``exp(delta) @ w2c_init``,
+    ``loss(delta)`` is the tracking loss there (delta [6] = (rho m, phi rad)), ``lambda_color`` its colour weight."""
+
+    view_at: Callable
+    loss: Callable
+    lambda_color: jax.Array
+
+
+def tracking_objective(
     gaussians: Gaussians,
     color: jax.Array,
     depth: jax.Array,
@@ -44,9 +54,9 @@ def track(
     config: SlamConfig,
     smooth,
     gamma,
-) -> TrackResult:
-    """Track one frame (colour [H, W, 3], depth [H, W]) from ``w2c_init``; ``smooth`` selects CB-KNN renders
-    (keyframes in ``paper`` mode, with the keyframe colour weight)."""
+) -> TrackingObjective:
+    """What the tracker minimises for one frame (colour [H, W, 3], depth [H, W]) with the map held fixed;
+    ``smooth`` selects CB-KNN renders (keyframes in ``paper`` mode, with the keyframe colour weight)."""
     cfg = config.tracking
     gaussians = jax.lax.stop_gradient(gaussians)
     lambda_color = jnp.where(smooth, config.cbknn.lambda_color_keyframe, cfg.lambda_color) if (
@@ -61,9 +71,24 @@ def track(
         return tracking_loss(view_at(delta), color, depth, lambda_color, cfg.lambda_depth, cfg.sil_threshold,
                              cfg.normalized_depth)
 
-    if cfg.optimizer == "lm":
-        return _track_lm(view_at, loss_fn, w2c_init, config, lambda_color, color, depth)
-    return _track_adam(loss_fn, w2c_init, config)
+    return TrackingObjective(view_at, loss_fn, lambda_color)
+
+
+def track(
+    gaussians: Gaussians,
+    color: jax.Array,
+    depth: jax.Array,
+    w2c_init: jax.Array,
+    intrinsics: Intrinsics,
+    config: SlamConfig,
+    smooth,
+    gamma,
+) -> TrackResult:
+    """Track one frame (colour [H, W, 3], depth [H, W]) from ``w2c_init``, minimising :func:`tracking_objective`."""
+    objective = tracking_objective(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
+    if config.tracking.optimizer == "lm":
+        return _track_lm(objective.view_at, objective.loss, w2c_init, config, objective.lambda_color, color, depth)
+    return _track_adam(objective.loss, w2c_init, config)
 
 
 def _track_adam(loss_fn, w2c_init, config: SlamConfig) -> TrackResult:
