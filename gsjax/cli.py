@@ -352,7 +352,10 @@ def _add_sweep(sub) -> None:
                    help="a grid axis: a config field's dotted name and its values (repeat for more axes)")
     p.add_argument("--seeds", type=int, default=1, help="run seeds per config: --seed .. --seed + N - 1 (default 1)")
     p.add_argument("--batch", type=int, default=None,
-                   help="configs per program call, to bound memory (default: all configs of a program at once)")
+                   help="configs run at a time, to bound memory (default: all configs of a program at once)")
+    p.add_argument("--vmap-width", type=int, default=None, metavar="V",
+                   help="configs stacked into one vmapped program call, sharded over the devices (default: 1 on "
+                        "CPU, where the vmapped scan is slower per config, 64 on accelerators)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the previous sweep in --out (removes gsjax's sweep outputs there, nothing else)")
     p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk (default 8)")
@@ -376,7 +379,8 @@ def _cmd_sweep(args) -> int:
         return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)
 
     expand_grid(configure(), axes, [args.seed])  # bad overrides and grid values are reported before reading data
-    options = SweepOptions(out=args.out, chunk=args.chunk, batch=args.batch, eval_every=args.eval_every,
+    options = SweepOptions(out=args.out, chunk=args.chunk, batch=args.batch, vmap_width=args.vmap_width,
+                           eval_every=args.eval_every,
                            progress=not args.no_progress, overwrite=args.overwrite)
     check_run_dir(args.out, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
     maybe_initialize_distributed()

@@ -1,11 +1,13 @@
 """``gsjax sweep``: a grid of configs over one sequence, run as one vmapped program per static signature.
 
 The grid is the product of ``--grid FIELD=V1,V2`` axes times the run seeds. Configs that differ only in traced
-fields (learning rates, loss weights, CB-KNN alpha / K0 / beta, noise levels, ...) share one compiled program:
-:func:`gsjax.slam.driver.chunk_loop` runs ``jax.vmap`` of the whole tracking + mapping scan over a batch of
-stacked configs and initial states (``--batch B`` configs at a time, to bound memory), with the batch axis
-sharded over every device in a 1-D mesh. A static field in the grid (an iteration count, a mode) gives one program
-per value.
+fields (learning rates, loss weights, CB-KNN alpha / K0 / beta, noise levels, ...) share one compiled program; a
+static field in the grid (an iteration count, a mode) gives one program per value. ``--batch B`` configs run at a
+time over the same frames (:func:`gsjax.slam.driver.batch_chunk_loop`, bounding memory); within a batch,
+``--vmap-width V`` configs are stacked and run as ``jax.vmap`` of the whole tracking + mapping scan, the stacked
+axis sharded over every device of a 1-D mesh. With V = 1 (the CPU default: XLA:CPU runs the vmapped scan slower
+per config than the plain one) each config is one call of the plain program, configs spread round-robin over the
+devices and dispatched together, and every row is bit for bit the separate ``gsjax run``.
 
 Multi-host: start every host with the same command after ``jax.distributed.initialize()`` (e.g. set
 ``GSJAX_DISTRIBUTED=1`` and JAX's coordinator variables, see :func:`maybe_initialize_distributed`); the mesh then
@@ -38,7 +40,7 @@ from gsjax.io.atomic import atomic_write_bytes, atomic_write_json
 from gsjax.io.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run
 from gsjax.progress import Progress
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.driver import chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
+from gsjax.slam.driver import batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
 from gsjax.slam.state import initial_state, keyframe_capacity_for
 
 CSV_METRICS = ("seed", "ate_rmse_cm", "ate_splatam_cm", "psnr_db", "depth_l1_cm", "seconds", "run")
@@ -140,10 +142,54 @@ def to_host(tree):
     return jax.device_get(tree)
 
 
-def batch_size(requested: int | None, configs: int, devices: int) -> int:
-    """Configs per batch: ``requested`` (default: all), rounded up to a multiple of the device count."""
-    size = min(requested or configs, configs)
-    return devices * math.ceil(size / devices)
+def batch_size(requested: int | None, configs: int) -> int:
+    """Configs per batch (alive at once, bounding memory): ``requested`` (default: all), at most ``configs``."""
+    return min(requested or configs, configs)
+
+
+def vmap_width(requested: int | None, devices: int) -> int:
+    """Configs vmapped into one program call: ``requested``, else 1 on CPU and 64 elsewhere; a multiple of the
+    device count when above 1 (each device takes an equal slice).
+
+    On XLA:CPU the vmapped SLAM scan is slower per config than the plain one (measured: 1.6x for a batch of 1,
+    3.2x per config for a batch of 4, at 40x30), so CPU sweeps run the plain compiled program once per config,
+    configs on different devices at the same time."""
+    width = requested or (1 if jax.default_backend() == "cpu" else 64)
+    return width if width == 1 else devices * math.ceil(width / devices)
+
+
+def _groups(states: list, configs: list, width: int, mesh):
+    """The batch as program-call groups: single configs placed round-robin on the devices (``width`` 1), or
+    ``width`` configs stacked and sharded over the mesh (the last group padded with repeats of its last config).
+    -> (groups, the batch indices each group holds, the placement function for grown states)."""
+    from gsjax.slam.driver import Group
+
+    devices = list(mesh.devices.flat)
+    if width == 1:
+        groups = [Group(jax.device_put(s, devices[i % len(devices)]), jax.device_put(c, devices[i % len(devices)]))
+                  for i, (s, c) in enumerate(zip(states, configs))]
+        return groups, [[i] for i in range(len(states))], lambda g, s: jax.device_put(s, devices[g % len(devices)])
+    groups, members = [], []
+    for begin in range(0, len(states), width):
+        index = list(range(begin, min(begin + width, len(states))))
+        padded = index + [index[-1]] * (width - len(index))  # repeats keep the program's batch shape
+        groups.append(Group(place_batch(stack_trees([states[i] for i in padded]), mesh),
+                            place_batch(stack_trees([configs[i] for i in padded]), mesh), stacked=True))
+        members.append(index)
+    return groups, members, lambda g, s: place_batch(s, mesh)
+
+
+def _per_config(groups, members, parts, final_states, count):
+    """(final state, outputs [T, ...]) per batch entry, from the groups' per-chunk outputs."""
+    out = [None] * count
+    for g, (group, index) in enumerate(zip(groups, members)):
+        outputs = concat_outputs([chunk[g] for chunk in parts], batched=group.stacked)
+        for j, i in enumerate(index):
+            if group.stacked:
+                out[i] = (unstack_tree(final_states[g], j), unstack_tree(outputs, j))
+            else:
+                out[i] = (final_states[g], outputs)
+    return out
 
 
 # ------------------------------------------------------------------------------------------ the sweep
@@ -157,6 +203,7 @@ class SweepOptions:
     out: Path
     chunk: int = 8
     batch: int | None = None
+    vmap_width: int | None = None
     eval_every: int = 5
     samples: int = 1
     progress: bool = True
@@ -166,8 +213,9 @@ class SweepOptions:
         for name in ("chunk", "eval_every", "samples"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
-        if self.batch is not None and self.batch < 1:
-            raise ValueError(f"--batch must be >= 1, got {self.batch}")
+        for name in ("batch", "vmap_width"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
 
 
 def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: list[int], options: SweepOptions,
@@ -186,7 +234,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
     writer = jax.process_index() == 0
     out.mkdir(parents=True, exist_ok=True)
     k = sequence.intrinsics
-    height, width, total = k.height, k.width, len(sequence)
+    height, width_px, total = k.height, k.width, len(sequence)
     mesh = batch_mesh()
     devices = mesh.devices.size
     groups = group_by_program(points)
@@ -196,34 +244,35 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
             f"one compiled program per value, {len(groups)} programs")
     batches = []
     for group in groups:
-        size = batch_size(options.batch, len(group), devices)
-        batches += [(group[i:i + size], size) for i in range(0, len(group), size)]
+        size = batch_size(options.batch, len(group))
+        batches += [group[i:i + size] for i in range(0, len(group), size)]
+    width = vmap_width(options.vmap_width, devices)
     say(f"gsjax sweep: {len(points)} configs in {len(groups)} program(s), {len(batches)} batch(es) of up to "
-        f"{max(s for _, s in batches)} on {devices} device(s), {total} frames each")
+        f"{max(len(b) for b in batches)} on {devices} device(s), {width} config(s) vmapped per program call, "
+        f"{total} frames each")
     progress = Progress(total * len(batches), 0, options.progress)
     camera = _camera_record(sequence)
     rows: list[dict] = []
     timings = dict(slam_s=0.0, regrow_s=0.0, read_frames_s=0.0, outputs_s=0.0, first_chunk_s=[])
     t_start = time.perf_counter()
+    used_devices: set = set()
     try:
-        for number, (batch, size) in enumerate(batches):
-            padded = batch + [batch[-1]] * (size - len(batch))  # repeats keep the program's batch shape
-            kf_capacity = keyframe_capacity_for(total, padded[0].config.keyframe_every)
-            states = stack_trees([initial_state(2 * height * width, height, width, kf_capacity, total, p.seed)
-                                  for p in padded])
-            configs = stack_trees([p.config for p in padded])
-            states, configs = place_batch(states, mesh), place_batch(configs, mesh)
+        for number, batch in enumerate(batches):
+            kf_capacity = keyframe_capacity_for(total, batch[0].config.keyframe_every)
+            states = [initial_state(2 * height * width_px, height, width_px, kf_capacity, total, p.seed)
+                      for p in batch]
+            groups_, members, place = _groups(states, [p.config for p in batch], width, mesh)
 
-            def on_grow(dropped, first, last, capacity, number=number):
-                progress.write(f"capacity: batch {number + 1}: {dropped} new Gaussians found no free slot at frames "
-                               f"{first}-{last}; growing every map of the batch to {capacity} slots and re-running "
-                               "the chunk")
+            def on_grow(group, dropped, first, last, capacity, number=number):
+                progress.write(f"capacity: batch {number + 1}, configs {members[group]}: {dropped} new Gaussians "
+                               f"found no free slot at frames {first}-{last}; growing to {capacity} slots and "
+                               "re-running the chunk")
 
             parts, slam_s, regrow_s, first = [], 0.0, 0.0, None
-            for chunk in chunk_loop(states, sequence.read_host, total, configs, k, chunk=options.chunk,
-                                    batched=True, on_grow=on_grow, place=lambda t: place_batch(t, mesh)):
+            for chunk in batch_chunk_loop(groups_, sequence.read_host, total, k, chunk=options.chunk,
+                                          on_grow=on_grow, place=place):
                 parts.append(chunk.outputs)
-                states = chunk.state
+                final_states = chunk.states
                 slam_s += chunk.seconds
                 regrow_s += chunk.regrow_seconds
                 timings["read_frames_s"] += chunk.read_seconds
@@ -232,18 +281,20 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
             timings["slam_s"] += slam_s
             timings["regrow_s"] += regrow_s
             timings["first_chunk_s"].append(first)
-            outputs = concat_outputs(parts, batched=True)
-            state_devices = len(states.gaussians.means.sharding.device_set)
-            host_states = to_host(states)
+            per_config = _per_config(groups_, members, parts, final_states, len(batch))
+            for state, _ in per_config:
+                used_devices |= {d.id for d in state.gaussians.means.devices()}
             t0 = time.perf_counter()
             for i, point in enumerate(batch):
+                state, outputs = per_config[i]
                 run_dir = out / "runs" / f"{point.index:03d}"
-                run_outputs = {name: np.asarray(v)[i].tolist() for name, v in outputs._asdict().items()}
-                record = dict(describe or {}, frames=total, width=width, height=height, chunk=options.chunk,
+                run_outputs = {name: np.asarray(v).tolist() for name, v in outputs._asdict().items()}
+                record = dict(describe or {}, frames=total, width=width_px, height=height, chunk=options.chunk,
                               seed=point.seed, camera=camera, config=config_to_dict(point.config),
-                              sweep=dict(values=point.values, batch=number, batch_size=size))
+                              sweep=dict(values=point.values, batch=number, batch_size=len(batch)))
                 seconds = (slam_s + regrow_s) / len(batch)
-                run_timings = dict(slam_s=seconds, batch_slam_s=slam_s, batch_regrow_s=regrow_s, batch_size=size)
+                run_timings = dict(slam_s=seconds, batch_slam_s=slam_s, batch_regrow_s=regrow_s,
+                                   batch_size=len(batch))
                 if writer:
                     run_dir.mkdir(parents=True, exist_ok=True)
                     atomic_write_json(run_dir / "config.json", record)
@@ -251,8 +302,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
                                             RunOptions(out=run_dir, chunk=options.chunk, seed=point.seed,
                                                        eval_every=options.eval_every, samples=options.samples,
                                                        progress=False),
-                                            unstack_tree(host_states, i), run_outputs, run_timings, record,
-                                            list(input_warnings))
+                                            to_host(state), run_outputs, run_timings, record, list(input_warnings))
                     rows.append(_row(point, metrics, seconds, run_dir.relative_to(out)))
             timings["outputs_s"] += time.perf_counter() - t0
     finally:
@@ -267,7 +317,8 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
         atomic_write_json(out / "sweep.json", dict(
             describe or {}, grid={a.field: list(a.values) for a in axes}, seeds=sorted({p.seed for p in points}),
             configs=len(points), programs=len(groups), static_fields=statics, batches=len(batches),
-            devices=devices, state_devices=state_devices, frames=total, width=width, height=height, wall_s=time.perf_counter() - t_start,
+            devices=devices, state_devices=len(used_devices), vmap_width=width, frames=total, width=width_px,
+            height=height, wall_s=time.perf_counter() - t_start,
             timings=timings, warnings=list(input_warnings)))
     return rows
 

@@ -9,13 +9,23 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
 from gsjax.cli import main
 from gsjax.config_text import apply_overrides
 from gsjax.io.trajectory import read_tum_trajectory
-from gsjax.sweep import GridAxis, batch_size, expand_grid, group_by_program, parse_grid, read_sweep_csv, static_fields
+from gsjax.sweep import (
+    GridAxis,
+    batch_size,
+    expand_grid,
+    group_by_program,
+    parse_grid,
+    read_sweep_csv,
+    static_fields,
+    vmap_width,
+)
 from slam_fixtures import tiny_config
 from test_slam_cli import TINY_RUN
 
@@ -29,6 +39,13 @@ def sweep_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("sweep") / "sweep"
     # --batch 2: two batches through the same compiled program.
     assert main(["sweep", "--out", str(out), *TINY_RUN, *GRID, "--seeds", str(SEEDS), "--batch", "2"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def vmapped_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("vmapped") / "sweep"
+    assert main(["sweep", "--out", str(out), *TINY_RUN, *GRID, "--seeds", str(SEEDS), "--vmap-width", "2"]) == 0
     return out
 
 
@@ -85,9 +102,10 @@ def test_traced_fields_share_one_program_and_a_static_field_gives_one_per_value(
     assert static_fields(base, mixed) == ["tracking.iters"]
 
 
-def test_batch_size_bounds_the_batch_and_fills_the_devices():
-    assert batch_size(None, 8, 1) == 8 and batch_size(3, 8, 1) == 3
-    assert batch_size(3, 8, 2) == 4 and batch_size(None, 3, 2) == 4 and batch_size(16, 5, 1) == 5
+def test_batch_size_bounds_the_batch_and_the_vmap_width_fills_the_devices():
+    assert batch_size(None, 8) == 8 and batch_size(3, 8) == 3 and batch_size(16, 5) == 5
+    assert vmap_width(1, 2) == 1 and vmap_width(3, 2) == 4 and vmap_width(4, 1) == 4
+    assert vmap_width(None, 1) == (1 if jax.default_backend() == "cpu" else 64)
 
 
 # ------------------------------------------------------------------------------------------ the sweep
@@ -97,26 +115,36 @@ def _trajectory(run: Path) -> np.ndarray:
     return read_tum_trajectory(run / "trajectory.txt")[1]
 
 
-def test_every_sweep_row_equals_a_separate_run_with_the_same_overrides(sweep_dir, separate_runs):
+def test_every_sweep_row_equals_a_separate_run_bit_for_bit(sweep_dir, separate_runs):
+    """On CPU (vmap width 1) each config runs the very program `gsjax run` compiles, so rows equal exactly."""
     rows = read_sweep_csv(sweep_dir / "sweep.csv")
     assert len(rows) == CONFIGS
+    for row in rows:
+        alone = separate_runs[int(row["run"].split("/")[-1])]
+        assert (sweep_dir / row["run"] / "trajectory.txt").read_bytes() == (alone / "trajectory.txt").read_bytes()
+        metrics = json.loads((alone / "metrics.json").read_text())
+        assert float(row["ate_rmse_cm"]) == pytest.approx(metrics["trajectory"]["ate_rmse_c2w_cm"], rel=1e-5)
+        assert float(row["psnr_db"]) == pytest.approx(metrics["render"]["mean"]["psnr_db"], rel=1e-5)
+        assert json.loads((sweep_dir / row["run"] / "metrics.json").read_text())["config"] == metrics["config"]
+    # Not vacuous: the two learning rates give different trajectories.
+    assert not np.allclose(_trajectory(separate_runs[0]), _trajectory(separate_runs[2]), atol=1e-4)
+
+
+def test_vmapped_sweep_rows_equal_separate_runs_to_float32_rounding(vmapped_dir, separate_runs):
+    rows = read_sweep_csv(vmapped_dir / "sweep.csv")
+    assert len(rows) == CONFIGS and json.loads((vmapped_dir / "sweep.json").read_text())["vmap_width"] == 2
     worst_ate = 0.0
     for row in rows:
-        index = int(row["run"].split("/")[-1])
-        alone = separate_runs[index]
-        # float32 rounding: vmap reduces some sums in another order. Measured: poses within 2e-8 m for three of
-        # the four configs; in the fourth a rounding-level difference flips a discrete choice at frame 3 (a pixel at
-        # the silhouette threshold, or which of two nearly equal tracking losses is lowest): 2e-5 m there, 3e-4 m
-        # two frames later.
-        np.testing.assert_allclose(_trajectory(sweep_dir / row["run"]), _trajectory(alone), atol=1e-3)
+        alone = separate_runs[int(row["run"].split("/")[-1])]
+        # vmap reduces some float32 sums in another order. Measured: poses within 2e-8 m for three of the four
+        # configs; in the fourth a rounding-level difference flips a discrete choice at frame 3 (a pixel at the
+        # silhouette threshold, or which of two nearly equal tracking losses is lowest): 2e-5 m there, 3e-4 m two
+        # frames later; the largest ATE difference 1.2e-4 cm.
+        np.testing.assert_allclose(_trajectory(vmapped_dir / row["run"]), _trajectory(alone), atol=1e-3)
         metrics = json.loads((alone / "metrics.json").read_text())
         worst_ate = max(worst_ate, abs(float(row["ate_rmse_cm"]) - metrics["trajectory"]["ate_rmse_c2w_cm"]))
         assert float(row["psnr_db"]) == pytest.approx(metrics["render"]["mean"]["psnr_db"], abs=0.05)
-        swept = json.loads((sweep_dir / row["run"] / "metrics.json").read_text())
-        assert swept["config"] == metrics["config"]
     assert worst_ate < 0.02  # cm
-    # Not vacuous: the two learning rates give different trajectories.
-    assert not np.allclose(_trajectory(separate_runs[0]), _trajectory(separate_runs[2]), atol=1e-4)
 
 
 def test_sweep_writes_the_csv_markdown_heat_map_and_a_run_per_config(sweep_dir):
@@ -160,14 +188,14 @@ def test_bad_sweep_arguments_are_one_line_errors(tmp_path, capsys, argv, message
     assert not (tmp_path / "s").exists()
 
 
-def test_the_batch_axis_is_sharded_over_two_host_devices_with_the_same_results(sweep_dir, tmp_path):
-    """XLA_FLAGS forces two CPU devices: the batch of 2 is split one config per device."""
+def test_the_vmapped_axis_is_sharded_over_two_host_devices_with_the_same_results(vmapped_dir, tmp_path):
+    """XLA_FLAGS forces two CPU devices: each vmapped group of 2 is split one config per device."""
     out = tmp_path / "sharded"
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     code = ("import sys, jax; from gsjax.cli import main; assert jax.device_count() == 2; "
             "sys.exit(main(sys.argv[1:]))")
     done = subprocess.run([sys.executable, "-c", code, "sweep", "--out", str(out), *TINY_RUN, *GRID,
-                           "--seeds", str(SEEDS), "--batch", "2"], env=env, capture_output=True, text=True)
+                           "--seeds", str(SEEDS), "--vmap-width", "2"], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "on 2 device(s)" in done.stdout
     summary = json.loads((out / "sweep.json").read_text())
@@ -175,4 +203,4 @@ def test_the_batch_axis_is_sharded_over_two_host_devices_with_the_same_results(s
     rows = read_sweep_csv(out / "sweep.csv")
     assert len(rows) == CONFIGS
     for row in rows:
-        np.testing.assert_allclose(_trajectory(out / row["run"]), _trajectory(sweep_dir / row["run"]), atol=1e-3)
+        np.testing.assert_allclose(_trajectory(out / row["run"]), _trajectory(vmapped_dir / row["run"]), atol=1e-3)

@@ -1,6 +1,7 @@
 """The chunk loop: frames streamed through the jitted SLAM scan a chunk at a time, with capacity growth, for one
-config or a batch of configs vmapped into one program. ``gsjax run``, ``gsjax sweep``, ``gsjax landscape`` and
-the in-memory :func:`run` all drive SLAM through :func:`chunk_loop`.
+config (:func:`chunk_loop`) or a batch of configs over the same frames (:func:`batch_chunk_loop`: each group of
+the batch is one config, or several stacked and vmapped into one program). ``gsjax run``, ``gsjax sweep``,
+``gsjax landscape`` and the in-memory :func:`run` all drive SLAM through :func:`batch_chunk_loop`.
 
     from gsjax import slam
     result = slam.run(frames, slam.preset("cpu", 80), intrinsics, seed=0)   # frames: a stacked Frame [T, ...]
@@ -34,8 +35,8 @@ class Chunk(NamedTuple):
     Attributes:
       start, count: its first frame and number of real frames.
       frames: the ``count`` host frames read (with their ground truth, for the shell's warnings).
-      state: the state after the chunk ([B, ...] leaves when batched).
-      outputs: :class:`StepOutputs` of the real frames as numpy, [count, ...] ([B, count, ...] when batched).
+      state: the state after the chunk.
+      outputs: :class:`StepOutputs` of the real frames as numpy, [count, ...].
       capacity: the map capacity after the chunk.
       seconds: wall time of the chunk's final scan (s); regrow_seconds: of scans redone for capacity;
       read_seconds: of reading its frames.
@@ -80,24 +81,73 @@ def chunk_loop(
     *,
     chunk: int = 8,
     start: int = 0,
-    batched: bool = False,
     poses: np.ndarray | None = None,
     on_grow: Callable[[int, int, int, int], None] | None = None,
-    place: Callable | None = None,
 ) -> Iterator[Chunk]:
     """Run frames ``start .. total-1`` through SLAM from ``state``, ``chunk`` frames per scan; yield a
     :class:`Chunk` after each.
 
     ``read_frame(i)`` gives host frame ``i``; its ground-truth pose is blanked before it reaches the core.
-    ``batched``: ``state`` and ``config`` carry a leading batch axis on every leaf (one config per entry, all
-    with the same static fields) and run as one vmapped program over the shared frames.
     ``poses`` [total, 4, 4] w2c: known poses instead of tracking (mapping-only studies); None tracks.
     ``on_grow(dropped, first, last, new_capacity)`` is told before a chunk is re-run with a doubled capacity.
-    ``place(tree)``: puts a batched tree on devices (the sweep's sharding); None leaves placement to JAX.
     """
-    place = place or (lambda tree: tree)
+    for batch in batch_chunk_loop([Group(state, config)], read_frame, total, intrinsics, chunk=chunk, start=start,
+                                  poses=poses, on_grow=lambda group, *info: on_grow and on_grow(*info)):
+        yield Chunk(batch.start, batch.count, batch.frames, batch.states[0], batch.outputs[0],
+                    _capacity(batch.states[0], False), batch.seconds, batch.regrow_seconds, batch.read_seconds)
+
+
+class Group(NamedTuple):
+    """One program call's worth of a batch: a state and its config, or (``stacked``) ``V`` states and configs
+    stacked on a leading axis and run as one vmapped program."""
+
+    state: SlamState
+    config: SlamConfig
+    stacked: bool = False
+
+
+class BatchChunk(NamedTuple):
+    """One chunk of :func:`batch_chunk_loop`: as :class:`Chunk`, with the new state and the outputs ([count, ...],
+    or [V, count, ...] for a stacked group) per group."""
+
+    start: int
+    count: int
+    frames: list
+    states: list
+    outputs: list
+    seconds: float
+    regrow_seconds: float
+    read_seconds: float
+
+
+def _call(group: Group, frames, valid, intrinsics, poses):
+    if group.stacked:
+        return _run_batch_chunk(group.state, frames, valid, group.config, intrinsics, poses)
+    return run_chunk(group.state, frames, valid, group.config, intrinsics, poses)
+
+
+def batch_chunk_loop(
+    groups: list[Group],
+    read_frame: Callable[[int], Frame],
+    total: int,
+    intrinsics: Intrinsics,
+    *,
+    chunk: int = 8,
+    start: int = 0,
+    poses: np.ndarray | None = None,
+    on_grow: Callable[[int, int, int, int, int], None] | None = None,
+    place: Callable | None = None,
+) -> Iterator[BatchChunk]:
+    """:func:`chunk_loop` for several groups over the same frames (read once per chunk): every group's chunk is
+    dispatched before any result is awaited, so groups placed on different devices run at the same time.
+
+    A group whose chunk dropped Gaussians is grown (every entry of a stacked group) and re-run on its own;
+    ``on_grow(group, dropped, first, last, new_capacity)`` is told first. ``place(group_index, state)`` puts a grown
+    state back where the group lives (None: JAX's default placement).
+    """
+    place = place or (lambda index, state: state)
+    states = [g.state for g in groups]
     done = start
-    capacity = _capacity(state, batched)
     while done < total:
         count = min(chunk, total - done)
         t0 = time.perf_counter()
@@ -108,30 +158,29 @@ def chunk_loop(
             chunk_poses = np.asarray(poses[done:done + count], np.float32)
             chunk_poses = jnp.asarray(np.concatenate([chunk_poses, np.repeat(chunk_poses[-1:], chunk - count, 0)]))
         read_s = time.perf_counter() - t0
-        regrow_s = 0.0
-        while True:
-            t0 = time.perf_counter()
-            if batched:
-                new_state, out = _run_batch_chunk(state, frames, valid, config, intrinsics, chunk_poses)
-            else:
-                new_state, out = run_chunk(state, frames, valid, config, intrinsics, chunk_poses)
+        t0 = time.perf_counter()
+        launched = [_call(g._replace(state=s), frames, valid, intrinsics, chunk_poses) for g, s in zip(groups, states)]
+        new_states, outputs, regrow_s = [], [], 0.0
+        for index, (group, (new_state, out)) in enumerate(zip(groups, launched)):
             out = jax.device_get(out)
-            elapsed = time.perf_counter() - t0
-            dropped = int(np.sum(np.asarray(out.dropped)[..., :count]))
-            if dropped == 0:
-                break
-            regrow_s += elapsed
-            capacity *= 2
-            if on_grow is not None:
-                on_grow(dropped, done, done + count - 1, capacity)
-            if batched:
-                state = place(_grow_batch(state, jnp.zeros(capacity)))
-            else:
-                state = grow_capacity(state, capacity)
-        state = new_state
-        # Per-frame fields are [C, ...], or [B, C, ...] after vmap over the scan.
-        out = jax.tree_util.tree_map(lambda x: np.asarray(x)[:, :count] if batched else np.asarray(x)[:count], out)
-        yield Chunk(done, count, host, state, out, capacity, elapsed, regrow_s, read_s)
+            state = states[index]
+            while (dropped := int(np.sum(np.asarray(out.dropped)[..., :count]))) > 0:
+                t1 = time.perf_counter()
+                capacity = 2 * _capacity(state, group.stacked)
+                if on_grow is not None:
+                    on_grow(index, dropped, done, done + count - 1, capacity)
+                state = place(index, _grow_batch(state, jnp.zeros(capacity)) if group.stacked
+                              else grow_capacity(state, capacity))
+                new_state, out = _call(group._replace(state=state), frames, valid, intrinsics, chunk_poses)
+                out = jax.device_get(out)
+                regrow_s += time.perf_counter() - t1
+            new_states.append(new_state)
+            # Per-frame fields are [C, ...], or [V, C, ...] after vmap over the scan.
+            outputs.append(jax.tree_util.tree_map(
+                lambda x: np.asarray(x)[:, :count] if group.stacked else np.asarray(x)[:count], out))
+        seconds = time.perf_counter() - t0 - regrow_s
+        states = new_states
+        yield BatchChunk(done, count, host, states, outputs, seconds, regrow_s, read_s)
         done += count
 
 

@@ -1,0 +1,78 @@
+"""Shared parts of the CB-KNN studies (robustness, ablation, alpha x K0 x beta): the sequences, running `gsjax sweep`
+as a user would, and writing a result CSV whose header holds the exact commands.
+
+Each study runs its sweeps into ``--work DIR`` (outside git; a sweep already finished there is reused, so an
+interrupted study continues), then writes a small CSV and a figure under ``experiments/results/``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "experiments" / "results"
+SEVEN_SCENES = ROOT.parent / "shared" / "data" / "7scenes_redkitchen"
+
+# name -> the gsjax flags that select it. 40x30 working images (downscale 4 of the synthetic 160x120, 16 of
+# 7-Scenes' 640x480) keep a study of hundreds of configs within a CPU session.
+SEQUENCES = {
+    "synthetic_noisy": ["--dataset", "synthetic", "--synthetic-noise", "--downscale", "4"],
+    "7scenes": ["--dataset", "7scenes", "--path", str(SEVEN_SCENES), "--downscale", "16"],
+}
+
+
+def sweep(work: Path, name: str, argv: list[str], log: list[str]) -> list[dict]:
+    """Run ``gsjax sweep --out work/name argv`` unless it already finished there; its rows (strings)."""
+    out = work / name
+    command = [sys.executable, "-m", "gsjax.cli", "sweep", "--out", str(out), "--no-progress", *argv]
+    log.append("gsjax " + shlex.join(command[3:]))
+    if not (out / "sweep.csv").is_file():
+        if out.exists():
+            command.append("--overwrite")  # an interrupted sweep: its partial outputs are replaced
+        print("running:", log[-1], flush=True)
+        subprocess.run(command, check=True, cwd=ROOT)
+    with open(out / "sweep.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def write_result_csv(path: Path, rows: list[dict], columns: list[str], commands: list[str]) -> Path:
+    """``rows`` as CSV under ``# command:`` header lines (the study's own command line first)."""
+    buffer = io.StringIO()
+    buffer.write(f"# command: {shlex.join([Path(sys.argv[0]).as_posix(), *sys.argv[1:]])}\n")
+    for command in commands:
+        buffer.write(f"# ran: {command}\n")
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n", extrasaction="ignore")
+    writer.writeheader()
+    writer.writerows(rows)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(buffer.getvalue())
+    print(f"wrote {path}")
+    return path
+
+
+def mean_std(values) -> tuple[float, float, int]:
+    """(mean, sample std, count) of the finite values."""
+    v = np.asarray([float(x) for x in values if x not in ("", None)], np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return float("nan"), float("nan"), 0
+    return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else 0.0, int(v.size)
+
+
+def summarise(rows: list[dict], keys: list[str], metric: str = "ate_rmse_cm") -> list[dict]:
+    """Rows grouped by ``keys`` with the metric's mean, std and count over the group (the seeds)."""
+    groups: dict = {}
+    for row in rows:
+        groups.setdefault(tuple(row[k] for k in keys), []).append(row[metric])
+    out = []
+    for key, values in groups.items():
+        mean, std, n = mean_std(values)
+        out.append({**dict(zip(keys, key)), f"{metric}_mean": mean, f"{metric}_std": std, "seeds": n})
+    return out
