@@ -16,8 +16,8 @@ from pathlib import Path
 from studies import RESULTS, SEQUENCES, mean_std, sweep, write_result_csv
 
 ALPHA = ("0.05", "0.1", "0.2")  # px at the 40 px working width (the preset's 0.1 at 40 px)
-K0 = ("4", "8", "12")
-BETA = ("0", "0.3", "1")
+K0 = ("4", "12")
+BETA = ("0", "1")
 
 
 def main() -> None:

@@ -19,8 +19,8 @@ import numpy as np
 
 from studies import RESULTS, SEQUENCES, mean_std, sweep, write_result_csv
 
-MAP_NOISE_CM = ("0", "0.5", "1", "2")
-DEPTH_NOISE_CM = ("1", "2", "4")  # 0 is the map-noise sweep's 0 row
+MAP_NOISE_CM = ("0", "1", "2")
+DEPTH_NOISE_CM = ("2", "4")  # 0 is the map-noise sweep's 0 row
 STRIDES = (2, 4, 8)  # 1 likewise
 
 

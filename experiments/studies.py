@@ -45,7 +45,9 @@ def sweep(work: Path, name: str, argv: list[str], log: list[str]) -> list[dict]:
 def write_result_csv(path: Path, rows: list[dict], columns: list[str], commands: list[str]) -> Path:
     """``rows`` as CSV under ``# command:`` header lines (the study's own command line first)."""
     buffer = io.StringIO()
-    buffer.write(f"# command: {shlex.join([Path(sys.argv[0]).as_posix(), *sys.argv[1:]])}\n")
+    script = Path(sys.argv[0]).resolve()
+    script = script.relative_to(ROOT) if script.is_relative_to(ROOT) else script
+    buffer.write(f"# command: {shlex.join(['python', script.as_posix(), *sys.argv[1:]])}\n")
     for command in commands:
         buffer.write(f"# ran: {command}\n")
     writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n", extrasaction="ignore")

@@ -3,6 +3,7 @@ contract, and the map built at ground-truth poses."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import jax
@@ -56,6 +57,7 @@ def test_landscape_json_has_the_contract_layout(landscape_dir):
     assert (landscape_dir / "landscape.png").read_bytes()[:4] == b"\x89PNG"
 
 
+@functools.lru_cache(maxsize=None)
 def _map_and_frame():
     gt = relative_gt_w2c().astype(np.float32)
     built = slam_run([tiny_sequence().read_host(i) for i in range(FRAME)], config(), tiny_sequence().intrinsics,
