@@ -27,7 +27,6 @@ import io
 import itertools
 import math
 import os
-import sys
 import time
 from pathlib import Path
 
