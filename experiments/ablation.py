@@ -3,7 +3,7 @@ smoothing only, both; a fixed K (beta = 0: K = K0 everywhere) vs the adaptive K;
 hybrid compositing; against ``off``, over several seeds, on the noisy synthetic room and the 7-Scenes sample, with
 map noise (CB-KNN's use case: tracking against noisy Gaussians).
 
-    python experiments/ablation.py --work /tmp/gsjax_ablation --seeds 3 --frames 18 --map-noise-cm 1
+    python experiments/ablation.py --work /tmp/gsjax_ablation --seeds 2 --frames 18 --map-noise-cm 1
 
 Writes ``experiments/results/ablation.csv`` and ``ablation.png``.
 """
@@ -28,7 +28,7 @@ VARIANTS = {
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, required=True)
-    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--seeds", type=int, default=2)
     parser.add_argument("--frames", type=int, default=18)
     parser.add_argument("--map-noise-cm", default="1")
     parser.add_argument("--sequences", default=",".join(SEQUENCES))

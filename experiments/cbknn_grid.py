@@ -1,7 +1,7 @@
 """A small alpha x K0 x beta grid of CB-KNN (``paper`` mode) on one sequence as one vmapped `gsjax sweep`, against
 ``off`` with the same seeds, under map noise.
 
-    python experiments/cbknn_grid.py --work /tmp/gsjax_grid --seeds 2 --frames 18 --sequence 7scenes
+    python experiments/cbknn_grid.py --work /tmp/gsjax_grid --seeds 1 --frames 18 --sequence 7scenes
 
 Writes ``experiments/results/cbknn_grid.csv`` (mean and std of the ATE over the seeds per grid point, and the
 ``off`` baseline) and ``cbknn_grid.png`` (the sweep's own heat map: ATE over alpha x K0, a panel per beta).
@@ -23,7 +23,7 @@ BETA = ("0", "1")
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, required=True)
-    parser.add_argument("--seeds", type=int, default=2)
+    parser.add_argument("--seeds", type=int, default=1)
     parser.add_argument("--frames", type=int, default=18)
     parser.add_argument("--map-noise-cm", default="1")
     parser.add_argument("--sequence", default="7scenes", choices=list(SEQUENCES))

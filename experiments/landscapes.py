@@ -2,8 +2,8 @@
 
     python experiments/landscapes.py --work /tmp/gsjax_landscapes --frames 10,25,40 --axes tx,tz,ry
 
-Each frame is one `gsjax landscape` (map from SLAM over the frames before it, reference = the GT pose). Writes
-``experiments/results/landscapes.csv`` (per frame, axis and mode: basin width, loss and |gradient| at the grid's
+Each frame is one `gsjax landscape` (map from SLAM over the frames before it, or with ``--map-from gt`` at their GT
+poses; reference = the GT pose). Writes ``experiments/results/landscapes.csv`` (``landscapes_gt.csv`` for GT maps) (per frame, axis and mode: basin width, loss and |gradient| at the grid's
 ends, the loss's minimum offset) and ``landscapes.png`` (every frame's loss curves, normalised per frame).
 """
 
@@ -30,13 +30,15 @@ def main() -> None:
     parser.add_argument("--extent-cm", default="3")
     parser.add_argument("--extent-deg", default="3")
     parser.add_argument("--sequence", default="7scenes", choices=list(SEQUENCES))
+    parser.add_argument("--map-from", default="slam", choices=("slam", "gt"))
     args = parser.parse_args()
+    suffix = "" if args.map_from == "slam" else "_gt"
     commands, docs = [], {}
     for frame in [int(f) for f in args.frames.split(",")]:
-        out = args.work / f"{args.sequence}_frame{frame:04d}"
+        out = args.work / f"{args.sequence}_frame{frame:04d}{suffix}"
         command = [sys.executable, "-m", "gsjax.cli", "landscape", "--out", str(out), *SEQUENCES[args.sequence],
                    "--frame", str(frame), "--axes", args.axes, "--steps", args.steps, "--extent-cm", args.extent_cm,
-                   "--extent-deg", args.extent_deg]
+                   "--extent-deg", args.extent_deg, "--map-from", args.map_from]
         commands.append("gsjax " + shlex.join(command[3:]))
         if not (out / "landscape.json").is_file():
             print("running:", commands[-1], flush=True)
@@ -52,8 +54,8 @@ def main() -> None:
                                   argmin=float(offsets[np.argmin(loss)]), loss_at_0=float(np.interp(0, offsets, loss)),
                                   loss_rise_at_ends=float(0.5 * (loss[0] + loss[-1]) - loss.min()),
                                   mean_abs_grad=float(np.mean(np.abs(grad)))))
-    write_result_csv(RESULTS / "landscapes.csv", table, list(table[0]), commands)
-    plot(docs, RESULTS / "landscapes.png")
+    write_result_csv(RESULTS / f"landscapes{suffix}.csv", table, list(table[0]), commands)
+    plot(docs, RESULTS / f"landscapes{suffix}.png")
 
 
 def plot(docs: dict, path: Path) -> None:
