@@ -301,29 +301,38 @@ def _open_run_sequence(args):
     return sequence, factor
 
 
-def _cmd_run(args) -> int:
+def _configure(args, width: int | None = None):
+    """The preset at the working ``width`` with the CB-KNN mode, then the command line's overrides as given."""
     from gsjax.config_text import apply_overrides
+    from gsjax.slam.presets import preset, with_cbknn_mode
+
+    return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)
+
+
+def _describe(args, sequence, factor: int) -> dict:
+    """What a run, sweep or landscape records about its input (config.json, metrics.json, sweep.json, ...)."""
+    return dict(dataset=args.dataset, path=str(args.path) if args.path else None, preset=args.preset,
+                cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides,
+                intrinsics=list(args.intrinsics) if args.intrinsics else None, depth_scale=args.depth_scale,
+                sequence=sequence.name)
+
+
+def _cmd_run(args) -> int:
     from gsjax.io.run_dir import check_run_dir
     from gsjax.run_outputs import summary_lines
     from gsjax.runner import RunOptions, run_slam
-    from gsjax.slam.presets import PRESET_WIDTH, preset, with_cbknn_mode
+    from gsjax.slam.presets import PRESET_WIDTH
 
     _quiet_logs()
 
-    def configure(width=None):  # the preset at the working width, then the overrides as given
-        return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)
-
-    configure()  # bad overrides are reported before any data is read
+    _configure(args)  # bad overrides are reported before any data is read
     options = RunOptions(out=args.out, chunk=args.chunk, seed=args.seed, resume=args.resume,
                          overwrite=args.overwrite, eval_every=args.eval_every, progress=not args.no_progress)
     check_run_dir(args.out, resume=args.resume, overwrite=args.overwrite)  # before reading any data
     (sequence, factor), input_warnings = _dataset_warnings(lambda: _open_run_sequence(args))
-    describe = dict(dataset=args.dataset, path=str(args.path) if args.path else None, preset=args.preset,
-                    cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides,
-                    intrinsics=list(args.intrinsics) if args.intrinsics else None, depth_scale=args.depth_scale,
-                    sequence=sequence.name)
+    describe = _describe(args, sequence, factor)
     width = sequence.intrinsics.width
-    config = configure(width)
+    config = _configure(args, width)
     print(f"gsjax run: {sequence!r}, preset {args.preset}, CB-KNN {args.cbknn}, downscale {factor} -> {args.out}",
           flush=True)
     scale = width / PRESET_WIDTH[args.preset]
@@ -365,9 +374,7 @@ def _add_sweep(sub) -> None:
 
 
 def _cmd_sweep(args) -> int:
-    from gsjax.config_text import apply_overrides
     from gsjax.io.run_dir import SWEEP_OUTPUTS, check_run_dir
-    from gsjax.slam.presets import preset, with_cbknn_mode
     from gsjax.sweep import SweepOptions, expand_grid, maybe_initialize_distributed, parse_grid, run_sweep
 
     _quiet_logs()
@@ -375,22 +382,16 @@ def _cmd_sweep(args) -> int:
         raise UserError(f"--seeds must be >= 1, got {args.seeds}")
     axes = [parse_grid(text) for text in args.grid]
 
-    def configure(width=None):
-        return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)
-
-    expand_grid(configure(), axes, [args.seed])  # bad overrides and grid values are reported before reading data
+    expand_grid(_configure(args), axes, [args.seed])  # bad overrides and grid values are reported before reading data
     options = SweepOptions(out=args.out, chunk=args.chunk, batch=args.batch, vmap_width=args.vmap_width,
                            eval_every=args.eval_every,
                            progress=not args.no_progress, overwrite=args.overwrite)
     check_run_dir(args.out, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
     maybe_initialize_distributed()
     (sequence, factor), input_warnings = _dataset_warnings(lambda: _open_run_sequence(args))
-    describe = dict(dataset=args.dataset, path=str(args.path) if args.path else None, preset=args.preset,
-                    cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides,
-                    intrinsics=list(args.intrinsics) if args.intrinsics else None, depth_scale=args.depth_scale,
-                    sequence=sequence.name)
+    describe = _describe(args, sequence, factor)
     seeds = list(range(args.seed, args.seed + args.seeds))
-    rows = run_sweep(sequence, configure(sequence.intrinsics.width), axes, seeds, options, describe=describe,
+    rows = run_sweep(sequence, _configure(args, sequence.intrinsics.width), axes, seeds, options, describe=describe,
                      input_warnings=tuple(input_warnings))
     best = min((r for r in rows if r["ate_rmse_cm"] is not None), key=lambda r: r["ate_rmse_cm"], default=None)
     if best is not None:
@@ -425,17 +426,11 @@ def _add_landscape(sub) -> None:
 
 
 def _cmd_landscape(args) -> int:
-    from gsjax.config_text import apply_overrides
     from gsjax.io.run_dir import LANDSCAPE_OUTPUTS, check_run_dir
     from gsjax.landscape import LandscapeOptions, run_landscape
-    from gsjax.slam.presets import preset, with_cbknn_mode
 
     _quiet_logs()
-
-    def configure(width=None):
-        return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)
-
-    configure()
+    _configure(args)  # bad overrides are reported before any data is read
     options = LandscapeOptions(out=args.out, frame=args.frame, axes=tuple(a.strip() for a in args.axes.split(",")),
                                extent_cm=args.extent_cm, extent_deg=args.extent_deg, steps=args.steps,
                                map_from=args.map_from, seed=args.seed, chunk=args.chunk, overwrite=args.overwrite)
@@ -443,9 +438,8 @@ def _cmd_landscape(args) -> int:
     if args.max_frames is None:
         args.max_frames = args.frame + 1  # frames past T are not read
     (sequence, factor), _ = _dataset_warnings(lambda: _open_run_sequence(args))
-    describe = dict(dataset=args.dataset, path=str(args.path) if args.path else None, preset=args.preset,
-                    cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides)
-    document = run_landscape(sequence, configure(sequence.intrinsics.width), options, describe=describe)
+    describe = _describe(args, sequence, factor)
+    document = run_landscape(sequence, _configure(args, sequence.intrinsics.width), options, describe=describe)
     for axis, entry in document["axes"].items():
         print(f"{axis}: basin off {entry['off']['basin']:g} {entry['unit']}, paper {entry['paper']['basin']:g} "
               f"{entry['unit']}")

@@ -39,7 +39,7 @@ from gsjax.io.atomic import atomic_write_bytes, atomic_write_json
 from gsjax.io.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run
 from gsjax.progress import Progress
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.driver import batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
+from gsjax.slam.driver import Group, batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
 from gsjax.slam.state import initial_state, keyframe_capacity_for
 
 CSV_METRICS = ("seed", "ate_rmse_cm", "ate_splatam_cm", "psnr_db", "depth_l1_cm", "seconds", "run")
@@ -161,8 +161,6 @@ def _groups(states: list, configs: list, width: int, mesh):
     """The batch as program-call groups: single configs placed round-robin on the devices (``width`` 1), or
     ``width`` configs stacked and sharded over the mesh (the last group padded with repeats of its last config).
     -> (groups, the batch indices each group holds, the placement function for grown states)."""
-    from gsjax.slam.driver import Group
-
     devices = list(mesh.devices.flat)
     if width == 1:
         groups = [Group(jax.device_put(s, devices[i % len(devices)]), jax.device_put(c, devices[i % len(devices)]))
