@@ -185,7 +185,10 @@ def _add_run(sub) -> None:
     again.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     again.add_argument("--overwrite", action="store_true",
                        help="replace the previous run in --out (removes gsjax's outputs there, nothing else)")
-    p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk and checkpoint (default 8)")
+    p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk (default 8)")
+    p.add_argument("--checkpoint-every", type=int, default=8, metavar="N",
+                   help="checkpoint after the first chunk that completes N frames since the last checkpoint, and at "
+                        "the end (default 8); a checkpoint writes the map and what is new since the previous one")
     p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run, accepts_overrides=True)
@@ -326,7 +329,8 @@ def _cmd_run(args) -> int:
     _quiet_logs()
 
     _configure(args)  # bad overrides are reported before any data is read
-    options = RunOptions(out=args.out, chunk=args.chunk, seed=args.seed, resume=args.resume,
+    options = RunOptions(out=args.out, chunk=args.chunk, checkpoint_every=args.checkpoint_every, seed=args.seed,
+                         resume=args.resume,
                          overwrite=args.overwrite, eval_every=args.eval_every, progress=not args.no_progress)
     check_run_dir(args.out, resume=args.resume, overwrite=args.overwrite)  # before reading any data
     (sequence, factor), input_warnings = _dataset_warnings(lambda: _open_run_sequence(args))

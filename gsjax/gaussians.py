@@ -97,6 +97,18 @@ class Gaussians:
             active=jnp.arange(capacity) < n,
         )
 
+    def without_nonfinite(self) -> tuple["Gaussians", jax.Array]:
+        """The map with every active slot whose parameters are not all finite freed (reset to an empty slot's
+        zeros, so it cannot reach a later sum as NaN) -> (map, [] int32 number of slots freed)."""
+        finite = (jnp.all(jnp.isfinite(self.means), axis=-1) & jnp.isfinite(self.log_scales)
+                  & jnp.isfinite(self.logit_opacities) & jnp.all(jnp.isfinite(self.rgb), axis=-1))
+        bad = self.active & ~finite
+        clear = lambda x: jnp.where(bad.reshape(bad.shape + (1,) * (x.ndim - bad.ndim)), 0.0, x)  # noqa: E731
+        cleaned = Gaussians(means=clear(self.means), log_scales=clear(self.log_scales),
+                            logit_opacities=clear(self.logit_opacities), rgb=clear(self.rgb),
+                            active=self.active & ~bad)
+        return cleaned, jnp.sum(bad.astype(jnp.int32), axis=-1)
+
     def grow(self, capacity: int) -> "Gaussians":
         """The same map with more free slots appended (for capacity growth between scan chunks)."""
         pad = capacity - self.capacity

@@ -30,12 +30,13 @@ if TYPE_CHECKING:
 
 
 def write_outputs(sequence: Sequence, config: SlamConfig, options: RunOptions, state: SlamState, outputs: dict,
-                  timings: dict, record: dict, warnings: list[str]) -> dict:
+                  timings: dict, record: dict, warnings: list[str], checkpoints: dict | None = None) -> dict:
     """Evaluate a finished run and write ``trajectory.txt``, ``trajectory.png``, ``renders/``, ``map.ply`` and
     ``metrics.json`` into ``options.out``; returns the metrics.
 
     ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` as lists; ``timings``: stage times (s);
-    ``record``: what ``config.json`` holds; ``warnings``: every warning of the run, for ``metrics.json``.
+    ``record``: what ``config.json`` holds; ``warnings``: every warning of the run, for ``metrics.json``;
+    ``checkpoints``: the runner's checkpoint ledger (count, seconds, bytes), for ``metrics.json``.
     """
     out = Path(options.out)
     t0 = time.perf_counter()
@@ -80,12 +81,24 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: RunOptions, s
         frames_with_truncated_render=int(np.sum(outputs["truncated"])),
         max_truncation_residual=float(np.max(outputs["truncation_residual"])),
         skipped_frames=[int(t) for t in np.flatnonzero(outputs["skipped"])],
+        retried_frames=[int(t) for t in np.flatnonzero(outputs["retried"])],
+        diverged_frames=[int(t) for t in np.flatnonzero(outputs["diverged"])],
+        nonfinite_gaussians=int(state.nonfinite_gaussians),
+        checkpoints=_checkpoint_summary(checkpoints),
         warnings=list(warnings),
         camera=record["camera"],
         config=record["config"],
     )
     atomic_write_json(out / "metrics.json", metrics)
     return metrics
+
+
+def _checkpoint_summary(ledger: dict | None) -> dict | None:
+    if not ledger or not ledger["count"]:
+        return None
+    return dict(count=ledger["count"], every_frames=ledger["every"],
+                mean_s=ledger["seconds_total"] / ledger["count"], max_s=ledger["seconds_max"],
+                last_bytes=ledger["bytes_last"], max_bytes=ledger["bytes_max"])
 
 
 def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: SlamState, outputs: dict) -> dict:

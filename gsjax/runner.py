@@ -5,7 +5,9 @@ The chunk loop is :func:`gsjax.slam.driver.chunk_loop` (the same one :func:`gsja
 it grows the map capacity, logged here, when a chunk could not insert every new Gaussian). Between chunks this
 module:
 
-* checkpoints the state (orbax) so ``--resume`` continues exactly where the run stopped;
+* checkpoints the run every ``checkpoint_every`` frames (:mod:`gsjax.io.checkpoint`: the map and what is new
+  since the previous checkpoint) so ``--resume`` continues exactly where the run stopped, from the newest
+  checkpoint that reads back whole;
 * shows a progress bar (frame, tracking loss, Gaussians, ATE so far when ground truth exists, frames/s).
 
 Ground truth is for evaluation only: the frames reach the SLAM core with their GT pose blanked
@@ -24,14 +26,12 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from gsjax.config_text import config_to_dict
 from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
-from gsjax.io.atomic import atomic_write_json
+from gsjax.io.atomic import atomic_write_json, remove_stale_temporaries
 from gsjax.io.run_dir import check_run_dir, clear_previous_run
 from gsjax.progress import Progress
 from gsjax.run_outputs import write_outputs
@@ -52,7 +52,9 @@ class RunOptions:
 
     Attributes:
       out: output directory.
-      chunk: frames per jitted scan chunk (and per checkpoint).
+      chunk: frames per jitted scan chunk.
+      checkpoint_every: a checkpoint after the first chunk that completes this many frames since the previous one,
+        and after the last frame.
       seed: PRNG seed of the run.
       resume: continue from the newest checkpoint in ``out/checkpoints``.
       eval_every: render-metric frames are t = 0 and (t + 1) % eval_every == 0 (SplaTAM's rule).
@@ -63,6 +65,7 @@ class RunOptions:
 
     out: Path
     chunk: int = 8
+    checkpoint_every: int = 8
     seed: int = 0
     resume: bool = False
     eval_every: int = 5
@@ -72,7 +75,7 @@ class RunOptions:
     overwrite: bool = False
 
     def __post_init__(self):
-        for name in ("chunk", "eval_every", "samples"):
+        for name in ("chunk", "checkpoint_every", "eval_every", "samples"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
         if self.capacity is not None and self.capacity < 1:
@@ -126,6 +129,14 @@ def _skipped_warning(sequence: Sequence, index: int, frame: Frame, config: SlamC
             f"is the constant-velocity prediction{then}")
 
 
+def _divergence_warning(sequence: Sequence, index: int, diverged: bool) -> str:
+    if diverged:
+        return (f"{sequence.describe_frame(index)}: tracking diverged twice (beyond tracking.max_step_m / "
+                "max_step_deg of the constant-velocity prediction); the frame keeps the prediction")
+    return (f"{sequence.describe_frame(index)}: tracking diverged (a loss jump or a pose beyond the step bound); "
+            "retried once with smaller steps")
+
+
 def run_slam(
     sequence: Sequence,
     config: SlamConfig,
@@ -138,7 +149,8 @@ def run_slam(
     """Run SLAM on ``sequence`` with ``config``; write every output under ``options.out``; return the metrics.
 
     ``describe`` (dataset name, path, preset, ...) is recorded in ``config.json`` and ``metrics.json``.
-    ``on_chunk(frames_done)`` is called after each checkpoint (tests use it to interrupt a run).
+    ``on_chunk(frames_done)`` is called after each chunk and its checkpoint, if any (tests use it to interrupt a
+    run).
     ``input_warnings``: what opening the sequence warned about, listed first in ``metrics.json``'s ``warnings``.
 
     Raises :class:`gsjax.io.run_dir.RunDirError` before writing anything when ``options.out`` holds a previous run
@@ -159,34 +171,49 @@ def run_slam(
         if removed:
             log.info("--overwrite: removed the previous run's %s from %s", ", ".join(removed), out)
     out.mkdir(parents=True, exist_ok=True)
+    for directory in (out, out / "renders"):  # what writers killed mid-write left (never a finished output)
+        remove_stale_temporaries(directory)
     record = dict(describe or {}, frames=total, width=width, height=height, chunk=options.chunk, seed=options.seed,
                   camera=_camera_record(sequence), config=config_to_dict(config))
-    checkpoints = Checkpoints(out / "checkpoints")
     timings = dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0)
     capacity = options.capacity or 2 * height * width
     kf_capacity = keyframe_capacity_for(total, config.keyframe_every)
-    state = initial_state(capacity, height, width, kf_capacity, total, options.seed)
+
+    def like(capacity: int):
+        return initial_state(capacity, height, width, kf_capacity, total, options.seed)
+
+    state = like(capacity)
     outputs: dict[str, list] = {}
     frame_warnings: list[str] = []  # found while running (kept in checkpoints, so a resumed run reports them too)
+    resume_warnings: list[str] = []  # about this resume (a checkpoint that could not be read)
     units_checked = False
     done = 0
     first_chunk_s = None
-    if options.resume and checkpoints.latest() is not None:
-        step = checkpoints.latest()
-        meta = checkpoints.read_meta(step)
-        try:
-            _check_resumable(meta, record, out)
-        except ValueError:
-            checkpoints.close()
-            raise
-        like = initial_state(meta["capacity"], height, width, kf_capacity, total, options.seed)
-        state, meta = checkpoints.restore(step, like)
-        # Plain device arrays, as a fresh start has (restored ones carry a placement that would force a recompile).
-        state = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), state)
-        outputs, done, capacity = meta["outputs"], meta["frames_done"], meta["capacity"]
-        timings, first_chunk_s = meta["timings"], meta["first_chunk_s"]  # timings cover the whole run
-        frame_warnings, units_checked = meta["warnings"], meta["depth_units_checked"]
-        log.info("resumed from checkpoint at frame %d (capacity %d)", done, capacity)
+    ledger = dict(count=0, seconds_total=0.0, seconds_max=0.0, bytes_last=0, bytes_max=0, every=0)
+    segments: list[list[int]] = []
+    keyframes_saved = 0
+    checkpoints = Checkpoints(out / "checkpoints")
+    if options.resume:
+        def fell_back(message: str) -> None:
+            resume_warnings.append(message)
+            print(f"warning: {message}", file=sys.stderr, flush=True)
+
+        restored = checkpoints.restore(like, fell_back)
+        if restored is not None:
+            meta = restored.meta
+            try:
+                _check_resumable(meta, record, out)
+            except ValueError:
+                checkpoints.close()
+                raise
+            state, outputs, done, capacity = restored.state, restored.outputs, restored.step, meta["capacity"]
+            timings, first_chunk_s = meta["timings"], meta["first_chunk_s"]  # timings cover the whole run
+            frame_warnings, units_checked = meta["warnings"], meta["depth_units_checked"]
+            ledger, segments, keyframes_saved = meta["checkpoints"], meta["segments"], meta["keyframes_saved"]
+            log.info("resumed from checkpoint at frame %d (capacity %d)", done, capacity)
+        elif resume_warnings:
+            fell_back("no checkpoint could be read: the run starts from frame 0")
+    ledger["every"] = options.checkpoint_every
     atomic_write_json(out / "config.json", record)
 
     _, gt_c2w, gt_valid = sequence.gt_trajectory()
@@ -200,6 +227,7 @@ def run_slam(
         progress.write(f"capacity: {dropped} new Gaussians found no free slot at frames {first}-{last}; growing the "
                        f"map to {new_capacity} slots and re-running the chunk")
 
+    pending: list = []  # the chunks' outputs since the last checkpoint
     try:
         for chunk in chunk_loop(state, sequence.read_host, total, config, intrinsics, chunk=options.chunk,
                                 start=done, on_grow=on_grow):
@@ -219,15 +247,28 @@ def run_slam(
             for i in np.flatnonzero(chunk_out.skipped):
                 warn(_skipped_warning(sequence, done + int(i), chunk.frames[i], config,
                                       started=int(chunk_out.num_gaussians[i]) > 0))
+            for i in np.flatnonzero(chunk_out.retried):
+                warn(_divergence_warning(sequence, done + int(i), bool(chunk_out.diverged[i])))
             for name, values in _outputs_to_lists(chunk_out, count).items():
                 outputs.setdefault(name, []).extend(values)
+            pending.append(chunk_out)
             done += count
-            t0 = time.perf_counter()
-            checkpoints.save(done, state, dict(frames_done=done, capacity=capacity, outputs=outputs,
-                                               record=_resume_key(record), timings=timings,
-                                               first_chunk_s=first_chunk_s, warnings=frame_warnings,
-                                               depth_units_checked=units_checked))
-            timings["checkpoint_s"] += time.perf_counter() - t0
+            since = segments[-1][1] if segments else 0
+            if done - since >= options.checkpoint_every or done == total:
+                t0 = time.perf_counter()
+                segments.append([since, done])
+                new = {name: np.concatenate([np.asarray(getattr(o, name)) for o in pending])
+                       for name in StepOutputs._fields}
+                meta = dict(frames_done=done, capacity=capacity, record=_resume_key(record), timings=timings,
+                            first_chunk_s=first_chunk_s, warnings=frame_warnings, depth_units_checked=units_checked,
+                            checkpoints=ledger)
+                written = checkpoints.save(state, meta, new, segments, keyframes_saved)
+                keyframes_saved, pending = int(state.keyframes.count), []
+                seconds = time.perf_counter() - t0
+                timings["checkpoint_s"] += seconds
+                ledger.update(count=ledger["count"] + 1, seconds_total=ledger["seconds_total"] + seconds,
+                              seconds_max=max(ledger["seconds_max"], seconds), bytes_last=written,
+                              bytes_max=max(ledger["bytes_max"], written))
             w2c = np.asarray(outputs["w2c"], np.float64)
             ate = _ate_so_far(w2c, gt_c2w, gt_valid)
             fields = dict(loss=f"{outputs['tracking_loss'][-1]:.1f}", gaussians=outputs["num_gaussians"][-1],
@@ -242,7 +283,8 @@ def run_slam(
         checkpoints.close()
 
     timings["compile_s_estimate"] = _compile_estimate(first_chunk_s, timings["slam_s"], total, options.chunk)
-    return write_outputs(sequence, config, options, state, outputs, timings, record, [*input_warnings, *frame_warnings])
+    return write_outputs(sequence, config, options, state, outputs, timings, record,
+                         [*input_warnings, *frame_warnings, *resume_warnings], ledger)
 
 
 def _resume_key(record: dict) -> dict:

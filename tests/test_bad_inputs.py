@@ -29,7 +29,7 @@ from gsjax.cli import main
 from gsjax.data import DatasetError, write_tum
 from slam_fixtures import CHUNK, FRAMES, HEIGHT, TINY_OVERRIDES, WIDTH, tiny_sequence
 
-RUN_OPTIONS = ["--chunk", str(CHUNK), "--no-progress"] + [
+RUN_OPTIONS = ["--chunk", str(CHUNK), "--checkpoint-every", str(CHUNK), "--no-progress"] + [
     token for name, value in TINY_OVERRIDES.items() for token in (f"--{name}", value)]
 LAYOUTS = {"tum": "tum", "7scenes": "7scenes"}
 

@@ -30,7 +30,7 @@ def run(dataset: str, path: Path, out: Path) -> dict:
 def per_frame_outputs(out: Path) -> dict:
     checkpoints = Checkpoints(out / "checkpoints")
     try:
-        return checkpoints.read_meta(checkpoints.latest())["outputs"]
+        return checkpoints.outputs(checkpoints.latest())
     finally:
         checkpoints.close()
 

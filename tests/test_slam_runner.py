@@ -20,14 +20,14 @@ OUTPUTS = ("trajectory.txt", "map.ply")
 
 
 def options(out, **changes) -> RunOptions:
-    return RunOptions(out=out, **{"chunk": CHUNK, "progress": False, **changes})
+    return RunOptions(out=out, **{"chunk": CHUNK, "checkpoint_every": CHUNK, "progress": False, **changes})
 
 
 def saved_outputs(out):
     """The per-frame outputs (every StepOutputs field, full float32 precision) of the newest checkpoint."""
     checkpoints = Checkpoints(out / "checkpoints")
     try:
-        return checkpoints.read_meta(checkpoints.latest())["outputs"]
+        return checkpoints.outputs(checkpoints.latest())
     finally:
         checkpoints.close()
 

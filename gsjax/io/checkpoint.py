@@ -1,49 +1,197 @@
-"""Checkpoints of a SLAM run (orbax): the state pytree plus a JSON record, written atomically, resumable.
+"""Checkpoints of a SLAM run: what a checkpoint writes does not grow with the run, and the newest readable one
+is restored.
 
-Each checkpoint is a numbered step directory under ``<out>/checkpoints`` holding ``state`` (the
-:class:`gsjax.slam.state.SlamState` arrays) and ``meta`` (JSON: frames done, capacity, per-frame outputs so far,
-config). Orbax writes into a temporary directory and renames it when complete, so an interrupted save never
-leaves a half-written checkpoint behind; the last two are kept.
+Layout under ``<out>/checkpoints``:
+
+* ``<step>/`` (orbax, one per checkpoint, the newest ``keep`` kept): the state without the keyframe images
+  (the map, recent poses, keyframe poses and counters, RNG) and a small JSON record (frames done, capacity, the
+  run's record, timings, warnings). ``step`` is the number of frames done. Orbax writes into a temporary
+  directory and renames it when complete, so a step directory is either whole or absent.
+* ``frames/<a>-<b>.npz``: the per-frame outputs of frames a..b-1, written once by the checkpoint that reached b.
+* ``keyframes/<slot>.npz``: keyframe ``slot``'s colour and depth, written once by the checkpoint after it was
+  stored.
+
+So a checkpoint writes the map plus the outputs and keyframes new since the previous one. Segment files are
+written atomically (:mod:`gsjax.io.atomic`) before the step that refers to them, and the step is the commit:
+files a killed checkpoint left without a step are rewritten, identically, when the run gets there again. The npz
+members carry CRC32s, so a damaged file fails to load. :meth:`Checkpoints.restore` tries the steps newest first
+and falls back, with a warning, past one it cannot read.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import io
 import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 import orbax.checkpoint as ocp
+
+from gsjax.io.atomic import atomic_write_bytes, remove_stale_temporaries
+from gsjax.slam.state import KeyframeBuffer, SlamState
+
+_IMAGES = ("color", "depth")  # the keyframe fields stored as files, one per slot
+
+
+class Restored(NamedTuple):
+    """A restored checkpoint: ``step`` (frames done), ``state``, ``meta`` (the JSON record) and ``outputs`` (the
+    per-frame outputs of frames 0..step-1 as ``{field: list}``)."""
+
+    step: int
+    state: SlamState
+    meta: dict
+    outputs: dict
+
+
+def _without_images(state: SlamState) -> dict:
+    """The state as a plain dict tree for orbax, the keyframe images left out."""
+    tree = {f.name: getattr(state, f.name) for f in dataclasses.fields(state)}
+    tree["keyframes"] = {f.name: getattr(state.keyframes, f.name) for f in dataclasses.fields(KeyframeBuffer)
+                         if f.name not in _IMAGES}
+    return tree
+
+
+def _npz_bytes(arrays: dict) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def _load_npz(path: Path) -> dict:
+    """Every member of ``path`` (reading each checks its CRC32)."""
+    with np.load(path, allow_pickle=False) as data:
+        return {name: data[name] for name in data.files}
 
 
 class Checkpoints:
-    """A checkpoint directory: ``save(step, state, meta)``, ``latest()``, ``restore(step, like_state)``."""
+    """The checkpoints of one run directory: :meth:`save` after a chunk, :meth:`restore` on ``--resume``."""
 
     def __init__(self, directory: str | os.PathLike, keep: int = 2):
         self.directory = Path(directory).resolve()
+        self.directory.mkdir(parents=True, exist_ok=True)
+        for sub in ("frames", "keyframes"):
+            (self.directory / sub).mkdir(exist_ok=True)
+            remove_stale_temporaries(self.directory / sub)
         self._manager = ocp.CheckpointManager(
             self.directory, options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True)
         )
 
-    def save(self, step: int, state, meta: dict) -> None:
-        """Write checkpoint ``step`` (blocking until it is complete on disk)."""
-        self._manager.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
+    # ---------------------------------------------------------------------------------------------- writing
+
+    def save(self, state: SlamState, meta: dict, outputs: dict, segments: list[list[int]],
+             keyframes_saved: int) -> int:
+        """Write the checkpoint after ``meta["frames_done"]`` frames; returns the bytes written.
+
+        ``outputs``: per-frame outputs ``{field: array [b - a]}`` of the frames since the previous checkpoint,
+        ``segments[-1] == [a, b]`` (every segment so far, recorded in the step); ``keyframes_saved``: keyframe slots
+        already on disk (slots from there to the state's count are written now).
+        """
+        step = int(meta["frames_done"])
+        start, end = segments[-1]
+        written = 0
+        path = self.directory / "frames" / f"{start:06d}-{end:06d}.npz"
+        written += len(data := _npz_bytes({k: np.asarray(v) for k, v in outputs.items()}))
+        atomic_write_bytes(path, data)
+        count = int(state.keyframes.count)
+        for slot in range(keyframes_saved, count):
+            images = {name: np.asarray(getattr(state.keyframes, name)[slot]) for name in _IMAGES}
+            written += len(data := _npz_bytes(images))
+            atomic_write_bytes(self.directory / "keyframes" / f"{slot:05d}.npz", data)
+        meta = dict(meta, segments=segments, keyframes_saved=count)
+        self._manager.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(_without_images(state)),
                                                          meta=ocp.args.JsonSave(meta)), force=True)
         self._manager.wait_until_finished()
+        return written + _tree_size(self.directory / str(step))
+
+    # ---------------------------------------------------------------------------------------------- reading
+
+    def steps(self) -> list[int]:
+        """Complete checkpoints' steps, newest first."""
+        return sorted(self._manager.all_steps(), reverse=True)
 
     def latest(self) -> int | None:
-        """The newest complete checkpoint's step, or None."""
-        return self._manager.latest_step()
+        steps = self.steps()
+        return steps[0] if steps else None
 
     def read_meta(self, step: int) -> dict:
         return self._manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
 
-    def restore(self, step: int, like_state):
-        """(state, meta) of checkpoint ``step``; ``like_state`` gives the pytree structure, shapes and dtypes."""
-        abstract = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), like_state)
-        restored = self._manager.restore(
-            step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore())
-        )
-        return restored.state, restored.meta
+    def outputs(self, step: int) -> dict:
+        """The per-frame outputs of frames 0..step-1 recorded by checkpoint ``step`` (``{field: list}``)."""
+        return self._outputs(self.read_meta(step))
+
+    def _outputs(self, meta: dict) -> dict:
+        parts = [_load_npz(self.directory / "frames" / f"{a:06d}-{b:06d}.npz") for a, b in meta["segments"]]
+        if [a for a, _ in meta["segments"]] != [0, *[b for _, b in meta["segments"][:-1]]]:
+            raise ValueError("the frame segments do not cover the run contiguously")
+        outputs = {name: np.concatenate([p[name] for p in parts]).tolist() for name in parts[0]} if parts else {}
+        lengths = {len(v) for v in outputs.values()}
+        if lengths != {meta["frames_done"]}:
+            raise ValueError(f"the frame segments hold {sorted(lengths)} frames, not {meta['frames_done']}")
+        return outputs
+
+    def restore(self, like: Callable[[int], SlamState], warn: Callable[[str], None]) -> Restored | None:
+        """The newest checkpoint that reads back whole, or None when there is none.
+
+        ``like(capacity)``: a state of the run's shapes for that map capacity (the structure to restore into). A
+        checkpoint that fails to read (damaged, partial, missing a segment) is reported through ``warn``, moved to
+        ``unreadable/`` and the previous one is tried.
+        """
+        unreadable, restored = [], None
+        for step in self.steps():
+            try:
+                restored = self._restore(step, like)
+                break
+            except Exception as error:  # any failure to read a checkpoint means: use an older one
+                detail = (str(error).splitlines() or ["no detail"])[0][:160]
+                warn(f"checkpoint {self.directory / str(step)} cannot be read ({type(error).__name__}: {detail}); "
+                     f"falling back to an older one (it is kept in {self.directory / 'unreadable'})")
+                unreadable.append(step)
+        if unreadable:  # out of the way of the steps the run will write again, kept for a look
+            aside = self.directory / "unreadable"
+            aside.mkdir(exist_ok=True)
+            for step in unreadable:
+                target = aside / str(step)
+                n = 1
+                while target.exists():
+                    target, n = aside / f"{step}.{n}", n + 1
+                os.replace(self.directory / str(step), target)
+            self._manager.reload()
+        return restored
+
+    def _restore(self, step: int, like: Callable[[int], SlamState]) -> Restored:
+        meta = self.read_meta(step)
+        template = like(int(meta["capacity"]))
+        abstract = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), _without_images(template))
+        tree = self._manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract))).state
+        # Plain host arrays, as a fresh start has (restored ones carry a placement that would force a recompile).
+        tree = jax.tree_util.tree_map(np.asarray, tree)
+        count = int(tree["keyframes"]["count"])
+        if count != meta["keyframes_saved"]:
+            raise ValueError(f"the state holds {count} keyframes, the record {meta['keyframes_saved']}")
+        images = {name: np.zeros(getattr(template.keyframes, name).shape, np.float32) for name in _IMAGES}
+        for slot in range(count):
+            stored = _load_npz(self.directory / "keyframes" / f"{slot:05d}.npz")
+            for name in _IMAGES:
+                images[name][slot] = stored[name]
+        keyframes = KeyframeBuffer(**tree.pop("keyframes"), **images)
+        state = SlamState(**tree, keyframes=keyframes)
+        state = jax.tree_util.tree_map(jnp.asarray, state)
+        return Restored(step, state, meta, self._outputs(meta))
 
     def close(self) -> None:
         self._manager.close()
+
+
+def _tree_size(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
+def checkpoint_bytes(directory: str | os.PathLike) -> int:
+    """Bytes on disk under a checkpoint directory (every step and segment)."""
+    return _tree_size(Path(directory))

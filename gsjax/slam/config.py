@@ -65,6 +65,14 @@ class TrackingConfig:
       normalized_depth: compare the observed depth with the rendered depth divided by the silhouette, D / S,
         instead of SplaTAM's D = sum w z. With S < 1 (young maps, low resolution) D underestimates depth by
         (1 - S) z, which biases the camera along its axis by about that much; D / S removes the bias.
+      max_step_m, max_step_deg: a physical bound on how far tracking may move the camera from its
+        constant-velocity prediction in one frame (camera centre, m; rotation, degrees). A tracked pose beyond it
+        has diverged.
+      loss_jump: tracking has also diverged when its loss exceeds this many times the previous tracked frame's.
+      retry_lr_scale: a diverged frame is tracked once more from the constant-velocity prediction with the step
+        sizes scaled by this; the result within the bound with the lower loss is kept, and when neither attempt is
+        within it the frame keeps the prediction (``StepOutputs.retried``, ``diverged``). (``adam`` only: the LM
+        solver has no step size to change, so a diverged LM frame keeps the prediction.)
     """
 
     iters: int = static(40)
@@ -77,6 +85,10 @@ class TrackingConfig:
     lr_final_ratio: float = 1.0
     best_pose: str = static("pre_step")
     normalized_depth: bool = static(False)
+    max_step_m: float = 0.5
+    max_step_deg: float = 30.0
+    loss_jump: float = 10.0
+    retry_lr_scale: float = 0.5
 
     def __post_init__(self):
         _check_positive_int("tracking", "iters", self.iters)
@@ -88,6 +100,8 @@ class TrackingConfig:
             _check_number("tracking", name, getattr(self, name), 0.0)
         _check_number("tracking", "lr_final_ratio", self.lr_final_ratio, 0.0, 1.0, strict_low=True)
         _check_number("tracking", "sil_threshold", self.sil_threshold, 0.0, 1.0)
+        for name in ("max_step_m", "max_step_deg", "loss_jump", "retry_lr_scale"):
+            _check_number("tracking", name, getattr(self, name), 0.0, strict_low=True)
 
 
 @jax.tree_util.register_dataclass

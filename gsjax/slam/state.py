@@ -79,6 +79,11 @@ class SlamState:
       nonfinite_tracking: [] int32 tracking iterations whose loss or gradient was not finite (skipped).
       nonfinite_mapping: [] int32 mapping iterations whose loss or gradient was not finite (skipped).
       dropped_gaussians: [] int32 new Gaussians that found no free slot (the shell grows capacity to avoid it).
+      nonfinite_gaussians: [] int32 Gaussians freed because a parameter was not finite.
+      previous_tracking_loss: [] float32 the last tracked frame's tracking loss (0 before; the divergence test's
+        reference).
+      retried_frames, diverged_frames: [] int32 frames whose tracking diverged and was retried / fell back to the
+        constant-velocity prediction.
     """
 
     gaussians: Gaussians
@@ -92,6 +97,10 @@ class SlamState:
     nonfinite_tracking: jax.Array
     nonfinite_mapping: jax.Array
     dropped_gaussians: jax.Array
+    nonfinite_gaussians: jax.Array
+    previous_tracking_loss: jax.Array
+    retried_frames: jax.Array
+    diverged_frames: jax.Array
 
 
 def initial_state(
@@ -111,6 +120,10 @@ def initial_state(
         nonfinite_tracking=jnp.int32(0),
         nonfinite_mapping=jnp.int32(0),
         dropped_gaussians=jnp.int32(0),
+        nonfinite_gaussians=jnp.int32(0),
+        previous_tracking_loss=jnp.float32(0.0),
+        retried_frames=jnp.int32(0),
+        diverged_frames=jnp.int32(0),
     )
 
 

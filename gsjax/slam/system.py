@@ -32,7 +32,7 @@ from gsjax.slam.keyframes import select_window
 from gsjax.slam.mapping import gather_window_frames, map_window
 from gsjax.slam.noise import NOISE_STREAM, add_depth_noise, perturb_map
 from gsjax.slam.state import SlamState
-from gsjax.slam.tracking import track
+from gsjax.slam.tracking import GuardedTrack, track_guarded
 from gsjax.slam.views import is_keyframe, render_view
 
 
@@ -46,7 +46,9 @@ class StepOutputs(NamedTuple):
       gamma: [] motion used by CB-KNN; nonfinite: [] skipped tracking iterations; truncated: [] bool, the
       densification render was truncated by the rasterizer's capacities; truncation_residual: [] the largest
       transmittance that truncation left in that render; skipped: [] bool, the frame had too little valid depth
-      and kept its predicted pose.
+      and kept its predicted pose; retried, diverged: [] bool, tracking diverged and the frame was tracked again
+      / fell back to the constant-velocity prediction (:func:`gsjax.slam.tracking.track_guarded`);
+      nonfinite_gaussians: [] Gaussians freed this frame because a parameter was not finite.
     """
 
     w2c: jax.Array
@@ -61,6 +63,17 @@ class StepOutputs(NamedTuple):
     truncated: jax.Array
     truncation_residual: jax.Array
     skipped: jax.Array
+    retried: jax.Array
+    diverged: jax.Array
+    nonfinite_gaussians: jax.Array
+
+
+def sanitize_frame(frame: Frame) -> Frame:
+    """The frame with every pixel whose colour or depth is not finite made invalid (depth 0, colour 0): a NaN or
+    inf from a broken sensor or file then never reaches a loss, a new Gaussian or a keyframe."""
+    finite = jnp.isfinite(frame.depth) & jnp.all(jnp.isfinite(frame.color), axis=-1)
+    return dataclasses.replace(frame, depth=jnp.where(finite, frame.depth, 0.0),
+                               color=jnp.where(finite[..., None], frame.color, 0.0))
 
 
 def _motion(state: SlamState, config: SlamConfig) -> jax.Array:
@@ -82,6 +95,7 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
     ``pose`` [4, 4] w2c: a known pose to map the frame at instead of tracking it (mapping-only studies, e.g. a map
     built from ground truth); None tracks.
     """
+    frame = sanitize_frame(frame)
     usable = jnp.mean(frame.depth > 0) >= config.min_valid_depth
     return jax.lax.cond(usable, lambda s: _process(s, frame, config, intrinsics, pose), lambda s: _coast(s, config, pose),
                         state)
@@ -94,7 +108,8 @@ def _coast(state: SlamState, config: SlamConfig, pose) -> tuple[SlamState, StepO
     outputs = StepOutputs(w2c=w2c, tracking_loss=zero, mapping_loss=zero, num_gaussians=state.gaussians.num_active(),
                           added=jnp.int32(0), dropped=jnp.int32(0), keyframe=jnp.bool_(False),
                           gamma=jnp.asarray(_motion(state, config), jnp.float32), nonfinite=jnp.int32(0),
-                          truncated=jnp.bool_(False), truncation_residual=zero, skipped=jnp.bool_(True))
+                          truncated=jnp.bool_(False), truncation_residual=zero, skipped=jnp.bool_(True),
+                          retried=jnp.bool_(False), diverged=jnp.bool_(False), nonfinite_gaussians=jnp.int32(0))
     new_state = dataclasses.replace(state, w2c_prev1=w2c, w2c_prev2=state.w2c_prev1,
                                     key=jax.random.split(state.key, 3)[2], frame=state.frame + 1)
     return new_state, outputs
@@ -102,6 +117,9 @@ def _coast(state: SlamState, config: SlamConfig, pose) -> tuple[SlamState, StepO
 
 def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics, pose):
     t = state.frame
+    # A map handed in with non-finite parameters (a restored or edited state) is cleaned before tracking sees it.
+    clean, freed_before = state.gaussians.without_nonfinite()
+    state = dataclasses.replace(state, gaussians=clean)
     frame = add_depth_noise(frame, config.noise, jax.random.fold_in(state.key, NOISE_STREAM))
     started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
     keyframe = is_keyframe(t, state.num_frames, config.keyframe_every) | ~started
@@ -114,19 +132,17 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
 
         def do_track():
             if pose is not None:
-                return pose, jnp.float32(0.0), jnp.int32(0)
+                return GuardedTrack(pose, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False))
             seen = perturb_map(state.gaussians, config.noise, jax.random.fold_in(state.key, NOISE_STREAM + 1))
-            result = track(seen, frame.color, frame.depth, w2c_init, intrinsics, config, smooth, gamma)
-            return result.w2c, result.loss, result.nonfinite
+            return track_guarded(seen, frame.color, frame.depth, w2c_init, intrinsics, config, smooth, gamma,
+                                 state.previous_tracking_loss)
 
         def skip_track():
-            return w2c_init, jnp.float32(0.0), jnp.int32(0)
+            return GuardedTrack(w2c_init, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False))
 
-        if pose is None:
-            w2c, tracking_loss, nonfinite = jax.lax.cond(started, do_track, skip_track)
-        else:
-            w2c, tracking_loss, nonfinite = do_track()
-        w2c = orthonormalize(w2c)
+        tracked = jax.lax.cond(started, do_track, skip_track) if pose is None else do_track()
+        w2c, tracking_loss, nonfinite = orthonormalize(tracked.w2c), tracked.loss, tracked.nonfinite
+        tracked_now = started & (pose is None) & ~tracked.diverged
 
     with jax.named_scope("densify"):
         smooth_densify = smooth & config.cbknn.densify
@@ -141,11 +157,13 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
                                config.cbknn)
         views = gather_window_frames(window, state.keyframes, frame.color, frame.depth, w2c, gamma, keyframe)
         mapped = map_window(key_map, gaussians, views, intrinsics, config, scene_radius, first_map=~started)
+        final_map, freed_after = mapped.gaussians.without_nonfinite()
+        freed = freed_before + freed_after
 
     keyframes = state.keyframes.push(frame.color, frame.depth, w2c, t, gamma, keyframe)
     new_state = dataclasses.replace(
         state,
-        gaussians=mapped.gaussians,
+        gaussians=final_map,
         w2c_prev1=w2c,
         w2c_prev2=state.w2c_prev1,
         keyframes=keyframes,
@@ -155,12 +173,16 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         nonfinite_tracking=state.nonfinite_tracking + nonfinite,
         nonfinite_mapping=state.nonfinite_mapping + mapped.nonfinite,
         dropped_gaussians=state.dropped_gaussians + inserted.dropped,
+        nonfinite_gaussians=state.nonfinite_gaussians + freed,
+        previous_tracking_loss=jnp.where(tracked_now, tracking_loss, state.previous_tracking_loss),
+        retried_frames=state.retried_frames + tracked.retried.astype(jnp.int32),
+        diverged_frames=state.diverged_frames + tracked.diverged.astype(jnp.int32),
     )
     outputs = StepOutputs(
         w2c=w2c,
         tracking_loss=tracking_loss,
         mapping_loss=mapped.loss,
-        num_gaussians=mapped.gaussians.num_active(),
+        num_gaussians=final_map.num_active(),
         added=inserted.added,
         dropped=inserted.dropped,
         keyframe=keyframe,
@@ -169,6 +191,9 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         truncated=view.truncated,
         truncation_residual=view.truncation_residual,
         skipped=jnp.bool_(False),
+        retried=tracked.retried,
+        diverged=tracked.diverged,
+        nonfinite_gaussians=freed,
     )
     return new_state, outputs
 

@@ -8,10 +8,15 @@ unconstrained and exact on SE(3). Two optimisers:
   iteration whose gradient is not finite takes no step and is counted.
 * ``lm``: Levenberg-Marquardt (optimistix) on the same masked residuals in least squares, with a forward-mode
   Jacobian through the renderer (6 columns); the result is kept only if its L1 tracking loss beats the start's.
+
+:func:`track_guarded` (what SLAM calls) detects divergence: a pose beyond a physical bound from the
+constant-velocity prediction, or a loss jump over the previous frame's; the frame is retried once (``adam``) and
+falls back to the prediction when no attempt stays within the bound.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -20,7 +25,7 @@ import jax.numpy as jnp
 import optax
 import optimistix as optx
 
-from gsjax.camera import Intrinsics, se3_exp
+from gsjax.camera import Intrinsics, camera_center, rotation_angle, se3_exp
 from gsjax.gaussians import Gaussians
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.losses import tracking_loss, tracking_residuals
@@ -128,3 +133,69 @@ def _track_lm(view_at, loss_fn, w2c_init, config: SlamConfig, lambda_color, colo
     better = usable & (end_loss < start_loss)
     best = jnp.where(better, delta, delta0)
     return TrackResult(se3_exp(best) @ w2c_init, jnp.where(better, end_loss, start_loss), (~usable).astype(jnp.int32))
+
+
+class GuardedTrack(NamedTuple):
+    """:class:`TrackResult` fields, plus ``retried`` [] bool (the first attempt diverged, the frame was tracked
+    again) and ``diverged`` [] bool (no attempt stayed within the bound: ``w2c`` is the prediction)."""
+
+    w2c: jax.Array
+    loss: jax.Array
+    nonfinite: jax.Array
+    retried: jax.Array
+    diverged: jax.Array
+
+
+def within_step_bound(w2c: jax.Array, w2c_init: jax.Array, config: SlamConfig) -> jax.Array:
+    """[] bool: ``w2c`` lies within the physical bound of one frame's motion from ``w2c_init`` (camera centre
+    ``max_step_m``, rotation ``max_step_deg``)."""
+    cfg = config.tracking
+    shift = jnp.linalg.norm(camera_center(w2c) - camera_center(w2c_init))
+    turn = rotation_angle(w2c[:3, :3] @ w2c_init[:3, :3].T)
+    return jnp.all(jnp.isfinite(w2c)) & (shift <= cfg.max_step_m) & (turn <= jnp.deg2rad(cfg.max_step_deg))
+
+
+def _diverged(result: TrackResult, w2c_init, previous_loss, config: SlamConfig) -> jax.Array:
+    # A non-finite loss (every iteration skipped) already keeps the start pose; a retry cannot mend the map.
+    jump = (previous_loss > 0) & (result.loss > config.tracking.loss_jump * previous_loss)
+    return jnp.isfinite(result.loss) & (jump | ~within_step_bound(result.w2c, w2c_init, config))
+
+
+def track_guarded(
+    gaussians: Gaussians,
+    color: jax.Array,
+    depth: jax.Array,
+    w2c_init: jax.Array,
+    intrinsics: Intrinsics,
+    config: SlamConfig,
+    smooth,
+    gamma,
+    previous_loss,
+) -> GuardedTrack:
+    """:func:`track` from the constant-velocity prediction ``w2c_init``, guarded against divergence.
+
+    ``previous_loss`` []: the previous tracked frame's loss (0: none, no loss-jump test). The retry runs inside
+    a ``while_loop`` of at most one pass, so it costs nothing when no frame diverges (also under ``vmap``, where a
+    ``cond`` would run both sides).
+    """
+    cfg = config.tracking
+    first = track(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
+    retry = _diverged(first, w2c_init, previous_loss, config)
+    if cfg.optimizer == "adam":
+        slower = dataclasses.replace(config, tracking=dataclasses.replace(
+            cfg, lr_trans=cfg.lr_trans * cfg.retry_lr_scale, lr_rot=cfg.lr_rot * cfg.retry_lr_scale))
+
+        def again(carry):
+            return jnp.bool_(False), track(gaussians, color, depth, w2c_init, intrinsics, slower, smooth, gamma)
+
+        _, second = jax.lax.while_loop(lambda carry: carry[0], again, (retry, first))
+    else:
+        second = first
+    ok_first = within_step_bound(first.w2c, w2c_init, config)
+    ok_second = within_step_bound(second.w2c, w2c_init, config)
+    use_second = retry & ok_second & (~ok_first | (second.loss < first.loss))
+    diverged = retry & ~ok_first & ~ok_second
+    w2c = jnp.where(diverged, w2c_init, jnp.where(use_second, second.w2c, first.w2c))
+    loss = jnp.where(use_second, second.loss, first.loss)
+    nonfinite = first.nonfinite + jnp.where(retry & (cfg.optimizer == "adam"), second.nonfinite, 0)
+    return GuardedTrack(w2c, loss, nonfinite, retry, diverged)
