@@ -62,8 +62,8 @@ def assert_nothing_half_written(out: Path) -> None:
 
 def pick_kill_points(trace: list[str], seed: int = 2026, count: int = 6) -> list[str]:
     """``count`` events of the uninterrupted run's trace, at random with a fixed seed, in trace order; at least one
-    before the first checkpoint, one inside a checkpoint write, one at a checkpoint commit and one in the final
-    outputs."""
+    before the first checkpoint, one inside a checkpoint write, one at a checkpoint commit, one mid-run at a scan
+    and one in the final outputs."""
     rng = np.random.default_rng(seed)
     first_commit = next(i for i, e in enumerate(trace) if e.startswith("commit:"))
     final = next(i for i, e in enumerate(trace) if e == "write:run/trajectory.txt")
@@ -71,6 +71,7 @@ def pick_kill_points(trace: list[str], seed: int = 2026, count: int = 6) -> list
         range(0, first_commit),
         [i for i, e in enumerate(trace) if e.startswith(("write:frames/", "write:keyframes/"))],
         [i for i, e in enumerate(trace) if e.startswith("commit:")],
+        [i for i, e in enumerate(trace) if e.startswith("scan:") and i > first_commit],
         range(final, len(trace)),
     ]
     chosen = {int(rng.choice(list(g))) for g in groups}

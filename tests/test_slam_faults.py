@@ -37,6 +37,15 @@ def test_non_finite_pixels_are_invalid_pixels():
     assert int(got[0].nonfinite_tracking) == 0 and int(got[0].nonfinite_mapping) == 0
 
 
+def test_a_frame_of_nan_is_a_frame_without_depth():
+    """Frame 3 all NaN (a dropped sensor read as NaN): skipped like a frame without depth, the map stays finite."""
+    chunk = frames(0, FRAMES)
+    bad = dataclasses.replace(chunk, color=chunk.color.at[3].set(jnp.nan), depth=chunk.depth.at[3].set(jnp.nan))
+    state, out = scan(bad)
+    np.testing.assert_array_equal(np.asarray(out.skipped), np.arange(FRAMES) == 3)
+    assert all_finite(state) and all_finite(out)
+
+
 def test_a_gaussian_with_a_non_finite_parameter_is_freed_before_tracking_and_counted():
     """A NaN colour put into the map after frame 2: frame 3 frees that slot first (counted in the state and the
     frame's outputs), then runs exactly as from the map with the slot empty."""
