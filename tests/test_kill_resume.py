@@ -1,6 +1,7 @@
 """Kill ``gsjax run`` anywhere and resume: SIGKILL at random traced points (mid-write of checkpoint files and of the
 final outputs, at a checkpoint's commit, mid-scan, before the first checkpoint), one after another, each followed
-by ``--resume``; the finished run equals an uninterrupted one, and no output is ever half-written. A damaged newest
+by ``--resume`` (the first resume starts before any checkpoint exists); the finished run equals an uninterrupted one,
+and no output is ever half-written. A damaged newest
 checkpoint falls back to the previous one with a warning."""
 
 from __future__ import annotations
@@ -100,6 +101,9 @@ def test_killed_at_random_points_and_resumed_the_run_equals_an_uninterrupted_one
         assert killed.returncode == KILL_EXIT, (point, killed.returncode, killed.stderr[-2000:])
         assert events(tmp_path / f"trace{n}.txt")[-1] == point
         assert_nothing_half_written(out)
+        if n == 0:  # killed before the first checkpoint: the next --resume must start cleanly from frame 0
+            assert trace.index(point) < trace.index(f"commit:{CHUNK}")
+            assert not any(p.name.isdigit() for p in (out / "checkpoints").iterdir())  # no step committed
         if point.startswith("write:"):  # killed mid-write: the partial data sits in a temporary file only
             folder, name = point[len("write:"):].split("/")
             where = out if folder == "run" else out / ("renders" if folder == "renders" else f"checkpoints/{folder}")
@@ -112,17 +116,6 @@ def test_killed_at_random_points_and_resumed_the_run_equals_an_uninterrupted_one
     metrics = json.loads((out / "metrics.json").read_text())
     assert comparable(metrics) == comparable(json.loads((reference / "metrics.json").read_text()))
     assert sorted(p.name for p in (out / "renders").iterdir()) == sorted(p.name for p in (reference / "renders").iterdir())
-
-
-def test_a_resume_before_the_first_checkpoint_starts_cleanly(tmp_path, uninterrupted):
-    reference, _ = uninterrupted
-    out = tmp_path / "run"
-    killed = harness(out, tmp_path / "trace.txt", kill_at="scan:0")
-    assert killed.returncode == KILL_EXIT and (out / "config.json").exists()
-    assert Checkpoints(out / "checkpoints").latest() is None
-    finished = harness(out, tmp_path / "final.txt", resume=True)
-    assert finished.returncode == 0 and "warning" not in finished.stderr, finished.stderr
-    assert (out / "trajectory.txt").read_bytes() == (reference / "trajectory.txt").read_bytes()
 
 
 # ------------------------------------------------------------------------- damaged checkpoints (in process)
@@ -142,6 +135,7 @@ def _truncate(path: Path) -> None:
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
 
 
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # orbax's reads of the damaged file
 @pytest.mark.parametrize("damage", ["state", "frames", "keyframes", "meta"])
 def test_a_damaged_newest_checkpoint_falls_back_to_the_previous_one_with_a_warning(tmp_path, finished_run, damage,
                                                                                   capsys):
