@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from gsjax.io.checkpoint import Checkpoints
-from gsjax.runner import RunOptions, run_slam
+from gsjax.runner import run_slam
 from kill_harness import KILL_EXIT
 from slam_fixtures import CHUNK, FRAMES, tiny_config, tiny_sequence
 from test_slam_cli import TINY_RUN
+from test_slam_runner import options
 
 HARNESS = Path(__file__).with_name("kill_harness.py")
 RUN = ["run", *TINY_RUN, "--checkpoint-every", str(CHUNK)]
@@ -119,10 +120,6 @@ def test_killed_at_random_points_and_resumed_the_run_equals_an_uninterrupted_one
 
 
 # ------------------------------------------------------------------------- damaged checkpoints (in process)
-
-
-def options(out, **changes) -> RunOptions:
-    return RunOptions(out=out, **{"chunk": CHUNK, "checkpoint_every": CHUNK, "progress": False, **changes})
 
 
 @pytest.fixture(scope="module")
