@@ -3,8 +3,11 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# apt-get needs root: as another user, sudo without a password prompt (or the install is skipped, said so).
+SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo -n)
+APT    := DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get -y -q
 
-.PHONY: install demo test test-slow bench clean
+.PHONY: install chromium demo test test-slow bench clean
 
 install: $(STAMP)
 
@@ -14,10 +17,19 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e '.[test]'
 	touch $(STAMP)
 
+# The browser tests (tests/test_browser.py) drive Debian's Chromium; installed here when missing.
+chromium:
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || [ -n "$$GSJAX_CHROMIUM" ] \
+	|| { echo "installing Debian's chromium package for the browser tests (apt-get)"; \
+	     $(APT) install chromium >/dev/null 2>&1 \
+	     || { $(APT) update >/dev/null 2>&1 && $(APT) install chromium >/dev/null 2>&1; } \
+	     || echo "could not install chromium (apt-get install chromium, as root): the browser tests will fail saying" \
+	             "so; GSJAX_SKIP_BROWSER_TESTS=1 skips them"; }
+
 demo: install
 	$(BIN)/gsjax run --dataset synthetic --out outputs/demo --overwrite
 
-test: install
+test: install chromium
 	$(BIN)/python -m pytest -q -m "not slow" tests
 
 test-slow: install

@@ -191,7 +191,24 @@ def _add_run(sub) -> None:
                         "the end (default 8); a checkpoint writes the map and what is new since the previous one")
     p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--viewer", action="store_true",
+                   help="show the map live in a browser viewer, updated after each chunk; it stays up after the run "
+                        "until Ctrl-C or SIGTERM")
+    p.add_argument("--viewer-host", default="127.0.0.1", metavar="HOST",
+                   help="the viewer's address (default 127.0.0.1: this machine only)")
+    p.add_argument("--viewer-port", type=_port, default=8080, metavar="PORT",
+                   help="the viewer's port (default 8080; the next free one if taken; 0: any free port)")
     p.set_defaults(func=_cmd_run, accepts_overrides=True)
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port number 0-65535, got {text!r}")
+    return value
 
 
 def _add_sequence_flags(p) -> None:
@@ -343,9 +360,79 @@ def _cmd_run(args) -> int:
     print(f"working resolution {width}x{sequence.intrinsics.height}: pixel settings at {scale:g}x the preset's "
           f"{PRESET_WIDTH[args.preset]} px (mapping.overlap_margin {config.mapping.overlap_margin:g} px, "
           f"cbknn.params.alpha {config.cbknn.params.alpha:g})", flush=True)
-    metrics = run_slam(sequence, config, options, describe=describe, input_warnings=tuple(input_warnings))
-    for line in summary_lines(metrics, args.out):
-        print(line)
+    live = None
+    if args.viewer:
+        import signal
+
+        from gsjax.viewer.live import LiveViewer
+
+        live = LiveViewer(sequence, config, host=args.viewer_host, port=args.viewer_port)
+        signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM stops the run like Ctrl-C
+        print(f"viewer: {live.url} (updated after each chunk of {args.chunk} frames)", flush=True)
+    try:
+        metrics = run_slam(sequence, config, options, describe=describe, input_warnings=tuple(input_warnings),
+                           observe=live.update if live else None)
+        for line in summary_lines(metrics, args.out):
+            print(line)
+        if live:
+            from gsjax.viewer import wait_for_stop
+
+            live.finished(metrics)
+            print(f"viewer: {live.url} shows the finished run; Ctrl-C or SIGTERM stops it", flush=True)
+            print(f"viewer stopped ({wait_for_stop()})", flush=True)
+    finally:
+        if live:
+            live.stop()
+    return 0
+
+
+def _add_report(sub) -> None:
+    p = sub.add_parser(
+        "report", help="the self-contained HTML report of a run, or of several runs side by side",
+        description="Write report.html: metrics, the trajectory against ground truth, ATE and RPE over time, renders "
+        "against inputs with error maps, PSNR per frame, Gaussian count, timings, CB-KNN's K and rho maps, warnings "
+        "and the config. One RUN: RUN/report.html (gsjax run writes it too). A sweep's directory: its runs side by "
+        "side in SWEEP/report.html. Several RUNs: side by side in ./report.html.",
+        parents=[COMMON])
+    p.add_argument("runs", nargs="+", type=Path, metavar="RUN", help="a gsjax run's (or sweep's) output directory")
+    p.add_argument("--out", type=Path, default=None,
+                   help="the page to write (default: see above; an existing file is replaced only if it is a gsjax "
+                        "report)")
+    p.set_defaults(func=_cmd_report)
+
+
+def _cmd_report(args) -> int:
+    from gsjax.report import write_report
+
+    path = write_report(args.runs, args.out)
+    print(f"wrote {path}")
+    return 0
+
+
+def _add_view(sub) -> None:
+    p = sub.add_parser(
+        "view", help="a browser viewer of a run: the map as splats, trajectories, keyframes, a frame slider",
+        description="Serve the finished run in RUN_DIR to a browser (viser): the Gaussian map as splats, the "
+        "estimated and ground-truth trajectories with keyframe frustums, the input and rendered images of the "
+        "selected keyframe and a frame slider. Stops on Ctrl-C (SIGINT) or SIGTERM.",
+        parents=[COMMON])
+    p.add_argument("run", type=Path, metavar="RUN_DIR", help="a gsjax run's output directory")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=_port, default=8080,
+                   help="port (default 8080; the next free one if taken; 0: any free port)")
+    p.set_defaults(func=_cmd_view)
+
+
+def _cmd_view(args) -> int:
+    from gsjax.viewer import open_run, wait_for_stop
+
+    _quiet_logs()
+    viewer = open_run(args.run, host=args.host, port=args.port)
+    try:
+        print(f"viewer: {viewer.url} shows {args.run}; Ctrl-C or SIGTERM stops it", flush=True)
+        print(f"viewer stopped ({wait_for_stop()})", flush=True)
+    finally:
+        viewer.stop()
     return 0
 
 
@@ -463,7 +550,7 @@ def _quiet_logs() -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="gsjax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_run, _add_sweep, _add_landscape, _add_eval, _add_synth):
+    for add in (_add_run, _add_sweep, _add_landscape, _add_report, _add_view, _add_eval, _add_synth):
         add(sub)
     return parser
 
@@ -487,6 +574,12 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"gsjax {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        again = " (continue it with --resume)" if args.command == "run" else ""
+        print(f"gsjax {args.command}: interrupted{again}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """The end of a run: evaluate the trajectory against every frame with a valid ground-truth pose (both ATE
 variants, RPE, a constant-pose baseline), render the evaluation frames with the final map (canonical rendering)
-for PSNR / MS-SSIM / SSIM / depth L1, and write ``trajectory.txt``, ``trajectory.png``, ``renders/``, ``map.ply``
-and ``metrics.json`` atomically; and the summary printed at the end."""
+for PSNR / MS-SSIM / SSIM / depth L1 (and CB-KNN's K and rho maps when CB-KNN smooths renders), and write
+``trajectory.txt``, ``groundtruth.txt``, ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and, last,
+``metrics.json`` atomically; and the summary printed at the end."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from gsjax.eval.image import render_metrics_splatam
 from gsjax.eval.trajectory import ate_rmse_c2w, evaluate_trajectory
 from gsjax.io.atomic import atomic_write_json
 from gsjax.io.images import render_panel, save_rgb_png
-from gsjax.io.plots import plot_trajectory_top_view
+from gsjax.io.plots import plot_cbknn_maps, plot_trajectory_top_view
 from gsjax.io.ply import write_ply
 from gsjax.io.trajectory import write_tum_trajectory
 from gsjax.raster import render
@@ -31,8 +32,9 @@ if TYPE_CHECKING:
 
 def write_outputs(sequence: Sequence, config: SlamConfig, options: RunOptions, state: SlamState, outputs: dict,
                   timings: dict, record: dict, warnings: list[str], checkpoints: dict | None = None) -> dict:
-    """Evaluate a finished run and write ``trajectory.txt``, ``trajectory.png``, ``renders/``, ``map.ply`` and
-    ``metrics.json`` into ``options.out``; returns the metrics.
+    """Evaluate a finished run and write ``trajectory.txt``, ``groundtruth.txt`` (when the sequence has ground
+    truth), ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and ``metrics.json`` into
+    ``options.out``; returns the metrics.
 
     ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` as lists; ``timings``: stage times (s);
     ``record``: what ``config.json`` holds; ``warnings``: every warning of the run, for ``metrics.json``;
@@ -47,6 +49,8 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: RunOptions, s
     anchor = gt_c2w[0] if gt_valid[0] else np.eye(4)
     est_world = anchor @ est_c2w
     write_tum_trajectory(out / "trajectory.txt", timestamps, est_world)
+    if gt_valid.any():  # for the report and the viewer; the dataset's own poses, in its world frame
+        write_tum_trajectory(out / "groundtruth.txt", timestamps[gt_valid], gt_c2w[gt_valid])
 
     metrics: dict = dict(dataset=record.get("dataset"), frames=len(est_c2w), width=record["width"],
                          height=record["height"])
@@ -65,7 +69,7 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: RunOptions, s
         metrics["trajectory"] = None
         plot_trajectory_top_view(out / "trajectory.png", est_c2w[:, :3, 3], None,
                                  title=f"{sequence.name} (no ground truth)")
-    metrics["render"] = _render_metrics(sequence, config, options, state, outputs)
+    metrics["render"], metrics["cbknn"] = _render_metrics(sequence, config, options, state, outputs)
     write_ply(out / "map.ply", state.gaussians)
     timings["outputs_s"] = time.perf_counter() - t0
     slam_frames_per_s = len(est_c2w) / timings["slam_s"] if timings["slam_s"] > 0 else None
@@ -88,9 +92,28 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: RunOptions, s
         warnings=list(warnings),
         camera=record["camera"],
         config=record["config"],
+        world_from_map=np.asarray(anchor, np.float64).tolist(),
+        keyframe_frames=[int(t) for t in np.flatnonzero(outputs["keyframe"])],
+        per_frame={name: [_json_number(v) for v in outputs[name]] for name in PER_FRAME},
     )
+    from gsjax.report import write_report
+
+    t0 = time.perf_counter()
+    write_report(out, metrics=metrics)
+    timings["report_s"] = time.perf_counter() - t0
     atomic_write_json(out / "metrics.json", metrics)
     return metrics
+
+
+# The per-frame outputs metrics.json keeps (the flags are listed as frame numbers: skipped_frames, ...).
+PER_FRAME = ("tracking_loss", "mapping_loss", "num_gaussians", "added", "dropped", "gamma")
+
+
+def _json_number(value):
+    """An int as is; a float, or None where it is not finite (JSON has no NaN)."""
+    if isinstance(value, (bool, int, np.integer)):
+        return int(value)
+    return float(value) if np.isfinite(value) else None
 
 
 def _checkpoint_summary(ledger: dict | None) -> dict | None:
@@ -101,30 +124,61 @@ def _checkpoint_summary(ledger: dict | None) -> dict | None:
                 last_bytes=ledger["bytes_last"], max_bytes=ledger["bytes_max"])
 
 
-def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: SlamState, outputs: dict) -> dict:
+def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: SlamState,
+                    outputs: dict) -> tuple[dict, dict | None]:
     """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0, except frames
     skipped for lack of depth: the final map rendered canonically at the estimated poses, compared with the input
-    (masked by valid depth). ``mean`` is None when no frame is left."""
+    (masked by valid depth). ``mean`` is None when no frame is left.
+
+    ``options.samples`` of those frames, spread evenly, get a labelled render-vs-input panel in
+    ``renders/frame_T.png``; when CB-KNN smooths renders (``paper``), they are also rendered with CB-KNN (the
+    frame's own motion gamma) for its diagnostics: K and rho maps in ``renders/cbknn_T.png`` and, returned second,
+    their statistics (None otherwise)."""
     total = len(outputs["w2c"])
     frames = [t for t in range(total) if (t == 0 or (t + 1) % options.eval_every == 0) and not outputs["skipped"][t]]
     if not frames:
-        return dict(frames=[], mean=None, per_frame=[])
+        return dict(frames=[], mean=None, per_frame=[]), None
     samples = set(np.unique(np.linspace(0, len(frames) - 1, min(options.samples, len(frames))).round().astype(int)))
     render_fn = jax.jit(lambda g, w: render(g, w, sequence.intrinsics, config.raster))
-    per_frame = []
-    (Path(options.out) / "renders").mkdir(parents=True, exist_ok=True)
+    smoothing = config.cbknn.smooth_renders
+    if smoothing:
+        params = config.cbknn.params
+        smoothed_fn = jax.jit(lambda g, w, m: render(g, w, sequence.intrinsics, config.raster, cbknn=params,
+                                                     motion=m).stats.cbknn)
+    per_frame, diagnostics = [], []
+    renders = Path(options.out) / "renders"
+    renders.mkdir(parents=True, exist_ok=True)
     for position, t in enumerate(frames):
         frame = sequence.read_host(t)
-        out = render_fn(state.gaussians, jnp.asarray(outputs["w2c"][t], jnp.float32))
+        w2c = jnp.asarray(outputs["w2c"][t], jnp.float32)
+        out = render_fn(state.gaussians, w2c)
         values = render_metrics_splatam(out.color, out.depth, jnp.asarray(frame.color), jnp.asarray(frame.depth))
         per_frame.append({k: float(v) for k, v in values.items()})
-        if position in samples:
-            panel = render_panel(np.asarray(out.color), frame.color, np.asarray(out.depth), frame.depth)
-            zoom = max(1, 320 // panel.shape[1])  # small (cpu-preset) images: nearest-neighbour enlarged to view
-            panel = np.repeat(np.repeat(panel, zoom, axis=0), zoom, axis=1)
-            save_rgb_png(Path(options.out) / "renders" / f"frame_{t:06d}.png", panel)
+        if position not in samples:
+            continue
+        panel = render_panel(np.asarray(out.color), frame.color, np.asarray(out.depth), frame.depth)
+        save_rgb_png(renders / f"frame_{t:06d}.png", panel)
+        if smoothing:
+            gamma = float(outputs["gamma"][t])
+            stats = jax.device_get(smoothed_fn(state.gaussians, w2c, jnp.float32(gamma)))
+            k_map = np.asarray(stats.k_map)
+            entry = dict(frame=t, gamma=gamma, k_mean=float(k_map.mean()), k_min=int(k_map.min()),
+                         k_max=int(k_map.max()), rho_max=float(np.max(stats.rho_map)),
+                         empty_cells=float(np.mean(np.asarray(stats.rho_map) == 0)),
+                         mean_shift_px=float(stats.mean_shift_px),
+                         fraction_fewer_than_k=float(stats.fraction_fewer_than_k))
+            diagnostics.append(entry)
+            plot_cbknn_maps(renders / f"cbknn_{t:06d}.png", k_map, stats.rho_map, params.cell,
+                            title=f"frame {t}: gamma {gamma:.2f}, mean K {entry['k_mean']:.2f}, mean shift "
+                                  f"{entry['mean_shift_px']:.3f} px, {100 * entry['fraction_fewer_than_k']:.0f}% "
+                                  "of pixels with fewer contributors than K")
     mean = {k: float(np.mean([p[k] for p in per_frame])) for k in per_frame[0]}
-    return dict(frames=frames, mean=dict(mean, depth_l1_cm=100 * mean["depth_l1_m"]), per_frame=per_frame)
+    render_metrics = dict(frames=frames, mean=dict(mean, depth_l1_cm=100 * mean["depth_l1_m"]), per_frame=per_frame)
+    cbknn = None
+    if smoothing:
+        cbknn = dict(mode=config.cbknn.mode, alpha=float(params.alpha), k0=float(params.k0), beta=float(params.beta),
+                     cell=params.cell, samples=diagnostics)
+    return render_metrics, cbknn
 
 
 def summary_lines(metrics: dict, out: Path) -> list[str]:
@@ -146,7 +200,7 @@ def summary_lines(metrics: dict, out: Path) -> list[str]:
     if metrics["frames_per_s"]:
         lines.append(f"{metrics['frames']} frames, {metrics['seconds_per_frame']:.2f} s/frame, "
                      f"{metrics['num_gaussians']} Gaussians")
-    lines.append(f"outputs in {Path(out).resolve()}: trajectory.txt metrics.json trajectory.png renders/ map.ply "
-                 "config.json checkpoints/")
+    lines.append(f"outputs in {Path(out).resolve()}: report.html trajectory.txt metrics.json trajectory.png renders/ "
+                 "map.ply config.json checkpoints/")
     return lines
 

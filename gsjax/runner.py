@@ -37,7 +37,7 @@ from gsjax.progress import Progress
 from gsjax.run_outputs import write_outputs
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import chunk_loop
-from gsjax.slam.state import initial_state, keyframe_capacity_for
+from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs
 
 log = logging.getLogger("gsjax")
@@ -144,13 +144,15 @@ def run_slam(
     *,
     describe: dict | None = None,
     on_chunk: Callable[[int], None] | None = None,
+    observe: Callable[[SlamState, dict], None] | None = None,
     input_warnings: tuple[str, ...] = (),
 ) -> dict:
     """Run SLAM on ``sequence`` with ``config``; write every output under ``options.out``; return the metrics.
 
     ``describe`` (dataset name, path, preset, ...) is recorded in ``config.json`` and ``metrics.json``.
     ``on_chunk(frames_done)`` is called after each chunk and its checkpoint, if any (tests use it to interrupt a
-    run).
+    run); ``observe(state, outputs)`` too, with the state and the per-frame outputs so far as lists (the live
+    viewer); the time it takes is ``stage_timings_s["observe_s"]``.
     ``input_warnings``: what opening the sequence warned about, listed first in ``metrics.json``'s ``warnings``.
 
     Raises :class:`gsjax.io.run_dir.RunDirError` before writing anything when ``options.out`` holds a previous run
@@ -276,6 +278,10 @@ def run_slam(
             if ate is not None:
                 fields["ate_cm"] = f"{100 * ate:.2f}"
             progress.update(count, **fields)
+            if observe is not None:
+                t0 = time.perf_counter()
+                observe(state, outputs)
+                timings["observe_s"] = timings.get("observe_s", 0.0) + time.perf_counter() - t0
             if on_chunk is not None:
                 on_chunk(done)
     finally:

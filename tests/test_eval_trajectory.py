@@ -17,6 +17,7 @@ from gsjax.eval.trajectory import (
     ate_rmse_c2w,
     ate_splatam_mean_w2c,
     evaluate_trajectory,
+    ground_truth_on_estimate,
     invert_rigid,
     rotation_angle_rad,
     rpe,
@@ -346,3 +347,36 @@ def test_invert_rigid_is_the_matrix_inverse():
     rng = np.random.default_rng(14)
     poses = np.stack([pose(random_rotation(rng), rng.standard_normal(3)) for _ in range(5)])
     np.testing.assert_allclose(invert_rigid(poses) @ poses, np.broadcast_to(np.eye(4), (5, 4, 4)), atol=1e-12)
+
+
+def test_evaluate_trajectory_per_frame_errors_are_the_ones_behind_the_statistics():
+    rng = np.random.default_rng(14)
+    gt = smooth_trajectory(rng, 40)
+    est = perturb(rng, gt)
+    stamps = np.arange(40) * 0.1
+    gt_valid = np.ones(40, bool)
+    gt_valid[[5, 6, 20]] = False
+    metrics = evaluate_trajectory(stamps, est, stamps, gt, gt_valid=gt_valid)
+    per_frame = metrics["per_frame"]
+    assert per_frame["est_index"] == [i for i in range(40) if gt_valid[i]]
+    assert np.sqrt(np.mean(np.square(per_frame["ate_c2w_m"]))) == pytest.approx(metrics["ate_rmse_c2w_m"], rel=1e-12)
+    assert per_frame["rpe_est_index"] == [i + 1 for i in range(39) if gt_valid[i] and gt_valid[i + 1]]
+    assert np.sqrt(np.mean(np.square(per_frame["rpe_trans_m"]))) == pytest.approx(metrics["rpe_trans_rmse_m"], rel=1e-12)
+    assert np.sqrt(np.mean(np.square(per_frame["rpe_rot_deg"]))) == pytest.approx(metrics["rpe_rot_rmse_deg"], rel=1e-12)
+
+
+def test_ground_truth_on_estimate_starts_at_the_estimates_pose_and_keeps_the_relative_motion():
+    rng = np.random.default_rng(15)
+    gt = smooth_trajectory(rng, 30)
+    moved = Alignment(random_rotation(rng), rng.standard_normal(3)).apply_c2w(gt)  # the same path in another frame
+    valid = np.ones(30, bool)
+    valid[:2] = False  # the first frames have no GT: the first one with GT anchors
+    frames, drawn = ground_truth_on_estimate(moved, gt, valid)
+    assert frames.tolist() == list(range(2, 30))
+    np.testing.assert_allclose(drawn, moved[2:], atol=1e-9)  # an exact estimate is drawn exactly on the GT
+    est = perturb(rng, moved)
+    frames, drawn = ground_truth_on_estimate(est, gt, valid)
+    np.testing.assert_allclose(drawn[0], est[2], atol=1e-12)
+    relative = lambda poses: invert_rigid(poses[0]) @ poses  # noqa: E731
+    np.testing.assert_allclose(relative(drawn), relative(gt[2:]), atol=1e-9)
+    assert ground_truth_on_estimate(est, gt, np.zeros(30, bool)) is None

@@ -7,7 +7,8 @@ import matplotlib
 import numpy as np
 import pytest
 
-from gsjax.io.images import colorize_depth, render_panel, save_color_png, save_depth_png, to_uint8
+from gsjax.io.images import (COLOR_ERROR_RANGE, DEPTH_ERROR_RANGE_M, LABEL_HEIGHT, colorize_depth, colorize_error,
+                             render_panel, save_color_png, save_depth_png, to_uint8)
 from gsjax.io.plots import plot_errors_over_time, plot_trajectory_top_view, top_view_axes
 
 
@@ -42,16 +43,50 @@ def test_colorize_depth_maps_the_range_through_the_colormap_and_blacks_out_inval
     assert rgb[0, 3].tolist() == [0, 0, 0]
 
 
-def test_render_panel_places_render_left_input_right_and_depths_below():
+def test_render_panel_lays_out_labelled_render_input_and_error_tiles_enlarged_to_the_minimum_width():
     h, w, gap = 5, 7, 2
     render, inp = np.full((h, w, 3), 0.2), np.full((h, w, 3), 0.8)
+    inp[0, 0] = 0.2  # one pixel without colour error
     depth_gt = np.linspace(1, 2, h * w).reshape(h, w)
-    panel = render_panel(render, inp, depth_gt * 0 + 1.5, depth_gt, gap=gap)
-    assert panel.shape == (2 * h + gap, 2 * w + gap, 3)
-    assert (panel[:h, :w] == to_uint8(render)).all() and (panel[:h, w + gap :] == to_uint8(inp)).all()
-    assert (panel[h : h + gap] == 255).all()
-    assert (panel[h + gap :, w + gap :] == colorize_depth(depth_gt, *np.percentile(depth_gt, [1, 99]))).all()
-    assert render_panel(render, inp, gap=gap).shape == (h, 2 * w + gap, 3)
+    depth_gt[4, 6] = 0.0  # invalid input depth: black in the depth error map
+    depth = depth_gt + 0.05
+    panel = render_panel(render, inp, depth, depth_gt, min_width=20, gap=gap)
+    zoom = 3  # the smallest integer factor making 7 px at least 20 px wide
+    th, tw = LABEL_HEIGHT + zoom * h, zoom * w  # a tile with its label strip
+    assert panel.shape == (2 * th + gap, 3 * tw + 2 * gap, 3)
+
+    def tile(row, col):
+        top, left = row * (th + gap) + LABEL_HEIGHT, col * (tw + gap)
+        return panel[top : top + zoom * h : zoom, left : left + tw : zoom]  # back to one pixel per input pixel
+
+    def strip(row, col):
+        top, left = row * (th + gap), col * (tw + gap)
+        return panel[top : top + LABEL_HEIGHT, left : left + tw]
+
+    lo, hi = np.percentile(depth_gt[depth_gt > 0], [1, 99])
+    assert (tile(0, 0) == to_uint8(render)).all() and (tile(0, 1) == to_uint8(inp)).all()
+    color_error = np.abs(render - inp).mean(axis=-1)
+    assert (tile(0, 2) == colorize_error(color_error, COLOR_ERROR_RANGE)).all()
+    assert tile(0, 2)[0, 0].tolist() == colorize_error(np.zeros((1, 1)), 1.0)[0, 0].tolist()
+    assert (tile(1, 0) == colorize_depth(depth, lo, hi)).all() and (tile(1, 1) == colorize_depth(depth_gt, lo, hi)).all()
+    assert (tile(1, 2) == colorize_error(np.abs(depth - depth_gt), DEPTH_ERROR_RANGE_M, depth_gt > 0)).all()
+    assert tile(1, 2)[4, 6].tolist() == [0, 0, 0]
+    for row in range(2):
+        for col in range(3):  # white strips with dark label text
+            assert (strip(row, col) < 128).any() and np.mean(strip(row, col) == 255) > 0.6
+    assert (panel[th : th + gap] == 255).all() and (panel[:, tw : tw + gap] == 255).all()
+    assert render_panel(render, inp, min_width=20, gap=gap).shape == (th, 3 * tw + 2 * gap, 3)
+    with pytest.raises(ValueError, match="give both"):
+        render_panel(render, inp, depth)
+
+
+def test_colorize_error_clips_at_the_range_and_blacks_out_invalid_pixels():
+    error = np.array([[0.0, 0.05, 0.2, np.nan]])
+    rgb = colorize_error(error, 0.1, valid=np.array([[True, True, True, True]]), cmap="viridis")
+    cmap = matplotlib.colormaps["viridis"]
+    assert rgb[0, 1].tolist() == to_uint8(np.array([[cmap(0.5)[:3]]]))[0, 0].tolist()
+    assert rgb[0, 2].tolist() == to_uint8(np.array([[cmap(1.0)[:3]]]))[0, 0].tolist()
+    assert rgb[0, 3].tolist() == [0, 0, 0]
 
 
 def _read_png(path):

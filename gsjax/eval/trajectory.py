@@ -211,6 +211,25 @@ def ate_rmse_c2w(est_c2w, gt_c2w, valid=None, with_scale: bool = False) -> AteRe
     return AteResult(_rmse(errors), errors, alignment, used)
 
 
+def ground_truth_on_estimate(est_c2w, gt_c2w, valid=None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The ground truth drawn in the estimate's world frame, for display: (the frames with ground truth and a finite
+    estimate [n] int, their GT poses [n, 4, 4]), or None when there is no such frame.
+
+    The GT is moved rigidly so that its pose at the first such frame is the estimate's: both trajectories start
+    together and drift apart as they do, orientations included. (The ATE's alignment of camera centres would
+    leave the rotation about a straight path undetermined.) Arguments as :func:`ate_rmse_c2w`.
+    """
+    est, gt = _as_poses(est_c2w, "est_c2w"), _as_poses(gt_c2w, "gt_c2w")
+    used = np.isfinite(gt).all(axis=(1, 2)) & np.isfinite(est).all(axis=(1, 2))
+    if valid is not None:
+        used &= np.asarray(valid, bool)
+    frames = np.flatnonzero(used)
+    if not len(frames):
+        return None
+    first = frames[0]
+    return frames, est[first] @ invert_rigid(gt[first]) @ gt[frames]
+
+
 def ate_splatam_mean_w2c(est_c2w, gt_c2w, valid=None) -> AteResult:
     """SplaTAM's "ATE RMSE" (method_spec B.1): the MEAN distance (m) between w2c translation columns after rigid
     Horn alignment. Not an RMSE and not camera centres; use it only to compare with SplaTAM's published numbers.
@@ -291,7 +310,9 @@ def evaluate_trajectory(
 
     Returns:
       dict with float metrics (units in the key: ``_m``, ``_cm``, ``_deg``; None where undefined), counts
-      (``num_*``), the alignment and ``definitions``.
+      (``num_*``), the alignment, ``per_frame`` (the per-frame errors behind the statistics: ``est_index`` and
+      ``ate_c2w_m`` of every evaluated estimate row; ``rpe_est_index``, the second row of each RPE pair, with
+      ``rpe_trans_m`` and ``rpe_rot_deg``) and ``definitions``.
     """
     est_c2w = _as_poses(est_c2w, "est_c2w")
     gt_c2w = _as_poses(gt_c2w, "gt_c2w")
@@ -332,5 +353,12 @@ def evaluate_trajectory(
         "max_dt_s": float(max_dt),
         "with_scale": bool(with_scale),
         "alignment": ate.alignment.to_json(),
+        "per_frame": {
+            "est_index": est_idx[ate.used].tolist(),
+            "ate_c2w_m": ate.errors_m.tolist(),
+            "rpe_est_index": est_idx[rel.pairs[:, 1]].tolist(),
+            "rpe_trans_m": rel.trans_errors_m.tolist(),
+            "rpe_rot_deg": rel.rot_errors_deg.tolist(),
+        },
         "definitions": dict(DEFINITIONS),
     }

@@ -1,4 +1,5 @@
-"""Image helpers: colour/depth PNGs, a colour-mapped depth image and render-vs-input panels (numpy + OpenCV).
+"""Image helpers: colour/depth PNGs, colour-mapped depth and error images and labelled render-vs-input panels
+(numpy + OpenCV).
 
 Colour images are [H, W, 3] floats in [0, 1] (RGB; clipped and rounded to 8 bits on output); depth images are
 [H, W] metres with 0 / non-finite = invalid. The ``*_png`` writers encode in memory and write atomically.
@@ -52,24 +53,66 @@ def colorize_depth(depth, vmin: float | None = None, vmax: float | None = None, 
     return to_uint8(np.where(valid[..., None], rgb, 0.0))
 
 
-def render_panel(color, color_gt, depth=None, depth_gt=None, gap: int = 4) -> np.ndarray:
-    """Side-by-side uint8 panel: ``[render | input]`` colours, and below them ``[render | input]`` depths (shared
-    colour range from the input depth) when both depths are given. White ``gap`` px between tiles."""
-    tiles = [[to_uint8(color), to_uint8(color_gt)]]
-    if tiles[0][0].shape != tiles[0][1].shape:
-        raise ValueError(f"render and input shapes differ: {tiles[0][0].shape} vs {tiles[0][1].shape}")
+# Fixed ranges of the error maps, so that panels of different frames and runs compare by eye.
+COLOR_ERROR_RANGE = 0.25  # mean |render - input| over the channels, colour units in [0, 1]
+DEPTH_ERROR_RANGE_M = 0.10
+LABEL_HEIGHT = 22  # px of the label strip above each tile
+
+
+def colorize_error(error, vmax: float, valid=None, cmap: str = "inferno") -> np.ndarray:
+    """Absolute error [H, W] -> uint8 RGB [H, W, 3] through ``cmap`` over [0, vmax] (clipped); pixels outside
+    ``valid`` (and non-finite ones) are black."""
+    error = np.asarray(error, np.float64)
+    valid = np.isfinite(error) if valid is None else np.asarray(valid, bool) & np.isfinite(error)
+    rgb = matplotlib.colormaps[cmap](np.clip(np.where(valid, error, 0.0) / vmax, 0.0, 1.0))[..., :3]
+    return to_uint8(np.where(valid[..., None], rgb, 0.0))
+
+
+def _labelled(tile: np.ndarray, label: str) -> np.ndarray:
+    """``tile`` [h, w, 3] uint8 under a white strip of ``LABEL_HEIGHT`` px holding ``label`` in black."""
+    strip = np.full((LABEL_HEIGHT, tile.shape[1], 3), 255, np.uint8)
+    cv2.putText(strip, label, (4, LABEL_HEIGHT - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.concatenate([strip, tile], axis=0)
+
+
+def render_panel(color, color_gt, depth=None, depth_gt=None, *, min_width: int = 320, gap: int = 4) -> np.ndarray:
+    """A labelled uint8 panel of a render against its input, for people to read.
+
+    Columns ``render | input | |render - input|``; rows colour, then depth when both depths are given (shared
+    colour range from the input's valid depth; the depth error only where the input depth is valid). The error
+    maps use fixed ranges (``COLOR_ERROR_RANGE``, ``DEPTH_ERROR_RANGE_M``) named in their labels. Each tile is
+    enlarged by nearest neighbour by the smallest integer factor that makes it at least ``min_width`` px wide
+    (small cpu-preset images), under a ``LABEL_HEIGHT`` px label strip; ``gap`` px of white between tiles.
+
+    Args:
+      color, color_gt: [H, W, 3] in [0, 1]; depth, depth_gt: [H, W] m (0 / non-finite = invalid) or None.
+    """
+    color, color_gt = np.asarray(color, np.float64), np.asarray(color_gt, np.float64)
+    if color.shape != color_gt.shape:
+        raise ValueError(f"render and input shapes differ: {color.shape} vs {color_gt.shape}")
     if (depth is None) != (depth_gt is None):
         raise ValueError("give both depth and depth_gt, or neither")
+    color_error = np.mean(np.abs(np.nan_to_num(color) - np.nan_to_num(color_gt)), axis=-1)
+    rows = [[(to_uint8(color), "render"), (to_uint8(color_gt), "input"),
+             (colorize_error(color_error, COLOR_ERROR_RANGE), f"|render - input| 0-{COLOR_ERROR_RANGE:g}")]]
     if depth is not None:
-        lo, hi = _percentile_range(*_depth_and_valid(depth_gt))
-        tiles.append([colorize_depth(depth, lo, hi), colorize_depth(depth_gt, lo, hi)])
+        depth, rendered_valid = _depth_and_valid(depth)
+        depth_gt, valid = _depth_and_valid(depth_gt)
+        if depth.shape != depth_gt.shape or depth.shape != color.shape[:2]:
+            raise ValueError(f"depth shapes {depth.shape}, {depth_gt.shape} do not match the colour's {color.shape[:2]}")
+        lo, hi = _percentile_range(depth_gt, valid)
+        error = np.abs(np.where(rendered_valid, depth, 0.0) - np.where(valid, depth_gt, 0.0))
+        rows.append([(colorize_depth(depth, lo, hi), "render depth"), (colorize_depth(depth_gt, lo, hi),
+                     f"input depth {lo:.2f}-{hi:.2f} m"),
+                     (colorize_error(error, DEPTH_ERROR_RANGE_M, valid),
+                      f"|depth error| 0-{100 * DEPTH_ERROR_RANGE_M:g} cm")])
+    zoom = max(1, -(-min_width // color.shape[1]))
+    tiles = [[_labelled(np.repeat(np.repeat(image, zoom, axis=0), zoom, axis=1), label) for image, label in row]
+             for row in rows]
     h, w, _ = tiles[0][0].shape
-    rows, cols = len(tiles), 2
-    panel = np.full((rows * h + (rows - 1) * gap, cols * w + (cols - 1) * gap, 3), 255, np.uint8)
+    panel = np.full((len(tiles) * h + (len(tiles) - 1) * gap, 3 * w + 2 * gap, 3), 255, np.uint8)
     for r, row in enumerate(tiles):
         for c, tile in enumerate(row):
-            if tile.shape != (h, w, 3):
-                raise ValueError(f"all tiles must be {h}x{w}, got {tile.shape[:2]}")
             panel[r * (h + gap) : r * (h + gap) + h, c * (w + gap) : c * (w + gap) + w] = tile
     return panel
 

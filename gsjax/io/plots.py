@@ -1,6 +1,7 @@
-"""Plots with matplotlib's Agg backend (no pyplot, no global state): trajectory top view and errors over time.
+"""Plots with matplotlib's Agg backend (no pyplot, no global state): trajectory top view, errors over time, sweep
+heat maps, landscapes and CB-KNN's K and rho maps.
 
-Each function builds its own Figure, renders it to PNG in memory and writes the file atomically.
+Each function builds its own Figure, renders it to PNG in memory (:func:`png_bytes`) and writes the file atomically.
 """
 
 from __future__ import annotations
@@ -20,11 +21,16 @@ from gsjax.io.atomic import atomic_write_bytes
 _AXES = {"x": 0, "y": 1, "z": 2}
 
 
-def _save(fig: Figure, path: str | os.PathLike, dpi: int) -> Path:
+def png_bytes(fig: Figure, dpi: int = 120) -> bytes:
+    """The figure as PNG bytes (tight bounding box)."""
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
-    return atomic_write_bytes(path, buf.getvalue())
+    return buf.getvalue()
+
+
+def _save(fig: Figure, path: str | os.PathLike, dpi: int) -> Path:
+    return atomic_write_bytes(path, png_bytes(fig, dpi))
 
 
 def top_view_axes(positions: np.ndarray) -> tuple[int, int]:
@@ -41,6 +47,11 @@ def plot_trajectory_top_view(
     title: str | None = None,
     dpi: int = 120,
 ) -> Path:
+    """Write :func:`trajectory_top_view` as a PNG file (atomically); returns the path."""
+    return _save(trajectory_top_view(est_positions, gt_positions, plane, title), path, dpi)
+
+
+def trajectory_top_view(est_positions, gt_positions, plane: str = "auto", title: str | None = None) -> Figure:
     """Top view of the estimated camera centres (already aligned to the GT) and the GT centres, with the
     per-frame offsets drawn as thin grey segments.
 
@@ -77,7 +88,7 @@ def plot_trajectory_top_view(
     ax.legend(loc="best", fontsize=8)
     if title:
         ax.set_title(title)
-    return _save(fig, path, dpi)
+    return fig
 
 
 def plot_errors_over_time(
@@ -187,4 +198,24 @@ def plot_landscape(path: str | os.PathLike, document: dict, title: str | None = 
                 ax.legend(loc="best", fontsize=7)
     if title:
         fig.suptitle(title)
+    return _save(fig, path, dpi)
+
+
+def plot_cbknn_maps(path: str | os.PathLike, k_map, rho_map, cell: int, title: str | None = None,
+                    dpi: int = 120) -> Path:
+    """CB-KNN's adaptive kernel size K (left) and normalised density rho (right) per ``cell`` x ``cell`` px cell,
+    each with its colour bar. ``k_map`` [cells_y, cells_x] int, ``rho_map`` the same shape (1 = mean of the
+    non-empty cells, 0 = empty)."""
+    k_map, rho_map = np.asarray(k_map), np.asarray(rho_map, np.float64)
+    fig = Figure(figsize=(9, 3.4), layout="constrained")
+    for i, (image, name, cmap) in enumerate(((k_map, f"K per {cell} px cell", "viridis"),
+                                             (rho_map, f"density rho per {cell} px cell", "magma"))):
+        ax = fig.add_subplot(1, 2, i + 1)
+        shown = ax.imshow(image, cmap=cmap, interpolation="nearest")
+        ax.set_title(name, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        fig.colorbar(shown, ax=ax, shrink=0.85)
+    if title:
+        fig.suptitle(title, fontsize=9)
     return _save(fig, path, dpi)

@@ -12,8 +12,8 @@ import shutil
 from pathlib import Path
 
 # Every file and folder a run writes directly under its directory.
-RUN_OUTPUTS = ("config.json", "checkpoints", "trajectory.txt", "metrics.json", "trajectory.png", "renders",
-               "map.ply", "report.html")
+RUN_OUTPUTS = ("config.json", "checkpoints", "trajectory.txt", "groundtruth.txt", "metrics.json", "trajectory.png",
+               "renders", "map.ply", "report.html")
 
 
 class RunDirError(ValueError):
@@ -21,7 +21,7 @@ class RunDirError(ValueError):
 
 
 # ... of a sweep and of a landscape.
-SWEEP_OUTPUTS = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json", "runs")
+SWEEP_OUTPUTS = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json", "runs", "report.html")
 LANDSCAPE_OUTPUTS = ("landscape.json", "landscape.png")
 
 

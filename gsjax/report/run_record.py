@@ -1,0 +1,138 @@
+"""A finished run read back from its directory (what ``gsjax run`` wrote), for the report and the viewer.
+
+A run directory holds ``metrics.json`` (written last: its presence marks a finished run), ``config.json``,
+``trajectory.txt`` (camera-to-world, in the dataset's world frame when frame 0 has ground truth),
+``groundtruth.txt`` (the dataset's poses, when it has any), ``map.ply`` (in the SLAM world frame, the first
+camera's; ``metrics.json``'s ``world_from_map`` takes it to the trajectory's frame) and ``renders/``. Runs made
+before a file or key existed read back with that part missing (None, or empty).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from gsjax.eval.association import associate_timestamps
+from gsjax.eval.trajectory import ground_truth_on_estimate
+from gsjax.io.trajectory import read_tum_trajectory
+
+
+class RunRecordError(ValueError):
+    """A directory is not a finished gsjax run, or one of its files cannot be read; the message names it."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunRecord:
+    """One finished run.
+
+    Attributes:
+      path: the run directory; name: how the report names it (the directory's name, unless that is ambiguous).
+      metrics: ``metrics.json``; record: ``config.json`` (dataset, preset, CB-KNN mode, camera, config, ...).
+      timestamps: [T] s; est_c2w: [T, 4, 4] camera-to-world (m), as in ``trajectory.txt``.
+      gt_timestamps, gt_c2w: ``groundtruth.txt`` ([M] s, [M, 4, 4]), or None.
+      panels: ``renders/frame_T.png`` as (T, path), by frame; cbknn_panels: ``renders/cbknn_T.png`` likewise.
+    """
+
+    path: Path
+    name: str
+    metrics: dict
+    record: dict
+    timestamps: np.ndarray
+    est_c2w: np.ndarray
+    gt_timestamps: np.ndarray | None
+    gt_c2w: np.ndarray | None
+    panels: tuple[tuple[int, Path], ...]
+    cbknn_panels: tuple[tuple[int, Path], ...]
+
+    @property
+    def world_from_map(self) -> np.ndarray:
+        """[4, 4]: map (SLAM world) coordinates -> the trajectory file's frame (identity for runs that predate it)."""
+        return np.asarray(self.metrics.get("world_from_map", np.eye(4)), np.float64)
+
+    def map_c2w(self) -> np.ndarray:
+        """[T, 4, 4] the estimated camera-to-world poses in the map's frame (what renders the map at each frame)."""
+        return np.linalg.inv(self.world_from_map) @ self.est_c2w
+
+    def ground_truth(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(estimate rows [n] int, the GT camera-to-world [n, 4, 4] associated with them by timestamp, in the
+        dataset's frame), or None without ground truth."""
+        if self.gt_c2w is None:
+            return None
+        est_rows, gt_rows = associate_timestamps(self.timestamps, self.gt_timestamps)
+        return (est_rows, self.gt_c2w[gt_rows]) if len(est_rows) else None
+
+    def ground_truth_in_map(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(estimate rows [n] int, their GT camera-to-world [n, 4, 4] in the map's frame, starting at the estimate's
+        pose: :func:`gsjax.eval.trajectory.ground_truth_on_estimate`), or None without ground truth."""
+        pairs = self.ground_truth()
+        if pairs is None:
+            return None
+        rows, gt_c2w = pairs
+        on_estimate = ground_truth_on_estimate(self.map_c2w()[rows], gt_c2w)
+        return None if on_estimate is None else (rows[on_estimate[0]], on_estimate[1])
+
+
+def _read_json(path: Path, required: bool) -> dict | None:
+    if not path.is_file():
+        if required:
+            raise RunRecordError(f"{path.parent} has no {path.name}: not a finished gsjax run (a run writes it last; "
+                                 "continue an interrupted one with gsjax run --resume)")
+        return None
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise RunRecordError(f"{path}: cannot be read as JSON ({error})") from None
+    if not isinstance(value, dict):
+        raise RunRecordError(f"{path}: expected a JSON object, got {type(value).__name__}")
+    return value
+
+
+def _read_trajectory(path: Path, required: bool):
+    if not path.is_file():
+        if required:
+            raise RunRecordError(f"{path.parent} has no {path.name}: not a finished gsjax run")
+        return None, None
+    try:
+        return read_tum_trajectory(path)
+    except ValueError as error:
+        raise RunRecordError(str(error)) from None
+
+
+def _frames_of(directory: Path, prefix: str) -> tuple[tuple[int, Path], ...]:
+    pattern = re.compile(rf"{prefix}_(\d+)\.png")
+    found = [(int(m.group(1)), p) for p in directory.glob(f"{prefix}_*.png") if (m := pattern.fullmatch(p.name))]
+    return tuple(sorted(found))
+
+
+def read_run(path: str | Path, metrics: dict | None = None) -> RunRecord:
+    """Read the run in ``path``; ``metrics`` stands in for ``metrics.json`` while a run writes its outputs.
+
+    Raises :class:`RunRecordError` naming the directory or file when it is not a finished run or a file is damaged.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise RunRecordError(f"{path}: no such run directory")
+    if metrics is None:
+        metrics = _read_json(path / "metrics.json", required=True)
+    record = _read_json(path / "config.json", required=False) or {}
+    timestamps, est_c2w = _read_trajectory(path / "trajectory.txt", required=True)
+    gt_timestamps, gt_c2w = _read_trajectory(path / "groundtruth.txt", required=False)
+    renders = path / "renders"
+    return RunRecord(path=path, name=path.name, metrics=metrics, record=record, timestamps=timestamps, est_c2w=est_c2w,
+                     gt_timestamps=gt_timestamps, gt_c2w=gt_c2w, panels=_frames_of(renders, "frame"),
+                     cbknn_panels=_frames_of(renders, "cbknn"))
+
+
+def expand_runs(paths: list[str | Path]) -> list[Path]:
+    """The run directories ``paths`` name: a sweep's directory (with ``sweep.json``) stands for its ``runs/*``."""
+    runs = []
+    for path in map(Path, paths):
+        if (path / "sweep.json").is_file() and (path / "runs").is_dir():
+            runs += sorted(p for p in (path / "runs").iterdir() if p.is_dir())
+        else:
+            runs.append(path)
+    return runs
