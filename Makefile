@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e '.[test]'
 	touch $(STAMP)
 
-# The browser tests (tests/test_browser.py) drive Debian's Chromium; installed here when missing.
+# The browser tests (tests/test_ui_browser.py) drive Debian's Chromium; installed here when missing.
 chromium:
 	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || [ -n "$$GSJAX_CHROMIUM" ] \
 	|| { echo "installing Debian's chromium package for the browser tests (apt-get)"; \

@@ -368,7 +368,8 @@ def _cmd_run(args) -> int:
 
         live = LiveViewer(sequence, config, host=args.viewer_host, port=args.viewer_port)
         signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM stops the run like Ctrl-C
-        print(f"viewer: {live.url} (updated after each chunk of {args.chunk} frames)", flush=True)
+        print(f"viewer: {live.url} (updated after each chunk of {args.chunk} frames; the map as points until the "
+              "run is done, see 'map as')", flush=True)
     try:
         metrics = run_slam(sequence, config, options, describe=describe, input_warnings=tuple(input_warnings),
                            observe=live.update if live else None)

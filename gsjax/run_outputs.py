@@ -161,17 +161,7 @@ def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: Sl
         if smoothing:
             gamma = float(outputs["gamma"][t])
             stats = jax.device_get(smoothed_fn(state.gaussians, w2c, jnp.float32(gamma)))
-            k_map = np.asarray(stats.k_map)
-            entry = dict(frame=t, gamma=gamma, k_mean=float(k_map.mean()), k_min=int(k_map.min()),
-                         k_max=int(k_map.max()), rho_max=float(np.max(stats.rho_map)),
-                         empty_cells=float(np.mean(np.asarray(stats.rho_map) == 0)),
-                         mean_shift_px=float(stats.mean_shift_px),
-                         fraction_fewer_than_k=float(stats.fraction_fewer_than_k))
-            diagnostics.append(entry)
-            plot_cbknn_maps(renders / f"cbknn_{t:06d}.png", k_map, stats.rho_map, params.cell,
-                            title=f"frame {t}: gamma {gamma:.2f}, mean K {entry['k_mean']:.2f}, mean shift "
-                                  f"{entry['mean_shift_px']:.3f} px, {100 * entry['fraction_fewer_than_k']:.0f}% "
-                                  "of pixels with fewer contributors than K")
+            diagnostics.append(_cbknn_sample(stats, t, gamma, params.cell, renders / f"cbknn_{t:06d}.png"))
     mean = {k: float(np.mean([p[k] for p in per_frame])) for k in per_frame[0]}
     render_metrics = dict(frames=frames, mean=dict(mean, depth_l1_cm=100 * mean["depth_l1_m"]), per_frame=per_frame)
     cbknn = None
@@ -179,6 +169,20 @@ def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: Sl
         cbknn = dict(mode=config.cbknn.mode, alpha=float(params.alpha), k0=float(params.k0), beta=float(params.beta),
                      cell=params.cell, samples=diagnostics)
     return render_metrics, cbknn
+
+
+def _cbknn_sample(stats, frame: int, gamma: float, cell: int, path: Path) -> dict:
+    """One sample frame's CB-KNN statistics (:class:`gsjax.raster.cbknn.CBKNNStats` on the host), and its K and rho
+    maps plotted to ``path``."""
+    k_map, rho_map = np.asarray(stats.k_map), np.asarray(stats.rho_map)
+    entry = dict(frame=frame, gamma=gamma, k_mean=float(k_map.mean()), k_min=int(k_map.min()), k_max=int(k_map.max()),
+                 rho_max=float(rho_map.max()), empty_cells=float(np.mean(rho_map == 0)),
+                 mean_shift_px=float(stats.mean_shift_px), fraction_fewer_than_k=float(stats.fraction_fewer_than_k))
+    plot_cbknn_maps(path, k_map, rho_map, cell,
+                    title=f"frame {frame}: gamma {gamma:.2f}, mean K {entry['k_mean']:.2f}, mean shift "
+                          f"{entry['mean_shift_px']:.3f} px, {100 * entry['fraction_fewer_than_k']:.0f}% of pixels "
+                          "with fewer contributors than K")
+    return entry
 
 
 def summary_lines(metrics: dict, out: Path) -> list[str]:

@@ -1,5 +1,6 @@
-"""Headless Chromium for the browser tests (and ``experiments/screenshots.py``): Debian's ``chromium`` driven by
-Playwright, with what a page logs, throws and requests recorded, and a test for a blank screenshot.
+"""Headless Chromium for the browser tests (and ``experiments/screenshots.py``, ``experiments/bench_viewer.py``):
+Debian's ``chromium`` driven by Playwright, with what a page logs, throws and requests recorded, a test for a blank
+screenshot, and gsjax commands in a subprocess whose output lines are watched.
 
 ``make test`` installs the ``chromium`` package when it is missing; without it the tests fail saying so (set
 ``GSJAX_SKIP_BROWSER_TESTS=1`` to skip them instead). ``GSJAX_CHROMIUM`` names another Chromium binary.
@@ -9,7 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import queue
+import re
 import shutil
+import subprocess
+import sys
+import threading
 import time
 from collections.abc import Callable
 
@@ -114,3 +120,68 @@ def wait_until(condition: Callable[[], object], timeout_s: float, what: str, pol
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
         time.sleep(poll_s)
+
+
+class Process:
+    """A gsjax command in a subprocess, its output lines collected as they come."""
+
+    def __init__(self, args: list[str]):
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.popen = subprocess.Popen([sys.executable, "-m", "gsjax.cli", *args], stdout=subprocess.PIPE,
+                                      stderr=subprocess.STDOUT, text=True, env=env)
+        self.lines: list[str] = []
+        self._queue: queue.Queue = queue.Queue()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.popen.stdout:
+            self._queue.put(line.rstrip("\n"))
+        self._queue.put(None)
+
+    def wait_for(self, pattern: str, timeout_s: float) -> re.Match:
+        """The first output line matching ``pattern`` (waiting for it); AssertionError with the output otherwise."""
+        deadline = time.monotonic() + timeout_s
+        for line in self.lines:
+            if match := re.search(pattern, line):
+                return match
+        while time.monotonic() < deadline:
+            try:
+                line = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            if line is None:
+                break
+            self.lines.append(line)
+            if match := re.search(pattern, line):
+                return match
+        raise AssertionError(f"no line matching {pattern!r}; output so far:\n" + "\n".join(self.lines))
+
+    def seen(self, pattern: str) -> bool:
+        """Whether an output line so far matches ``pattern`` (without waiting)."""
+        while True:
+            try:
+                line = self._queue.get_nowait()
+            except queue.Empty:
+                break
+            if line is None:
+                self._queue.put(None)  # the end stays visible to wait_for and finish
+                break
+            self.lines.append(line)
+        return any(re.search(pattern, line) for line in self.lines)
+
+    def finish(self, timeout_s: float | None = None) -> int:
+        """The exit status, once the process has ended and all its output is in ``lines``."""
+        code = self.popen.wait(timeout=timeout_s)
+        while (line := self._queue.get(timeout=30)) is not None:
+            self.lines.append(line)
+        return code
+
+    def stop(self, signum: int, timeout_s: float = 30.0) -> int:
+        """Send ``signum``; then :meth:`finish`."""
+        self.popen.send_signal(signum)
+        return self.finish(timeout_s)
+
+    def kill(self):
+        if self.popen.poll() is None:
+            self.popen.kill()
+            self.popen.wait()

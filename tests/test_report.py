@@ -1,7 +1,7 @@
 """report.html and the files behind it: every run writes a self-contained page (inline CSS, images as data URIs, no
 script or request) with every section; the per-frame series, ground truth, map frame and CB-KNN diagnostics it
 draws on are in the run directory; ``gsjax report`` regenerates it and puts several runs side by side. (Opening it
-in a real browser: ``tests/test_browser.py``.)"""
+in a real browser: ``tests/test_ui_browser.py``.)"""
 
 from __future__ import annotations
 

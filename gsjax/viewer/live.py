@@ -18,7 +18,12 @@ from gsjax.viewer.sources import LiveImages, MapRenderer
 
 class LiveViewer:
     """A :class:`MapViewer` of a run in progress; :meth:`update` after each chunk (it copies what it shows to the
-    host, so the SLAM loop may go on at once). ``seconds`` is the time the updates took (the run's cost)."""
+    host, so the SLAM loop may go on at once). ``seconds`` is the time the updates took (the run's cost).
+
+    While the run goes on the map is shown as points: viser's splats keep a depth sort running in the browser (more
+    than a core of a 2-core machine), which slows a run whose browser shares its cores by ~10 %, points by ~3 %
+    (``experiments/bench_viewer.py``). :meth:`finished` shows the splats, unless a user chose in the GUI.
+    """
 
     def __init__(self, sequence: Sequence, config: SlamConfig, host: str = "127.0.0.1", port: int = 8080,
                  title: str | None = None):
@@ -26,7 +31,8 @@ class LiveViewer:
         self._renderer = MapRenderer(k, config.raster)
         self._images = LiveImages(self._renderer)
         self.viewer = MapViewer(Camera(float(k.fx), float(k.fy), float(k.cx), float(k.cy), k.width, k.height),
-                                self._images, title=title or f"gsjax run: {sequence.name}", host=host, port=port)
+                                self._images, title=title or f"gsjax run: {sequence.name}", host=host, port=port,
+                                map_as="points")
         _, self._gt_c2w, self._gt_valid = sequence.gt_trajectory()
         self._title = title or sequence.name
         self.seconds = 0.0
@@ -67,6 +73,7 @@ class LiveViewer:
         from gsjax.viewer import summary_markdown
 
         self.viewer.set_summary(summary_markdown(self._title, metrics))
+        self.viewer.suggest_map_as("splats")
 
     def stop(self) -> None:
         self.viewer.stop()

@@ -25,6 +25,7 @@ ESTIMATE_RGB = (31, 119, 180)
 GROUND_TRUTH_RGB = (40, 40, 40)
 SELECTED_RGB = (214, 39, 40)
 IMAGE_WIDTH = 320  # px: GUI images are enlarged (nearest neighbour) to at least this width
+MAP_AS = ("splats", "points")
 
 
 class MapSnapshot(NamedTuple):
@@ -101,10 +102,11 @@ class MapViewer:
       images: the keyframe images' source.
       title: shown at the top of the GUI panel.
       host, port: where the server listens (port 0: any free port; a busy port: viser tries the next ones).
+      map_as: ``"splats"`` or ``"points"`` (the Gaussians' centres), the map's first look; the GUI switches it.
     """
 
     def __init__(self, camera: Camera, images: FrameImages, title: str = "gsjax", host: str = "127.0.0.1",
-                 port: int = 8080):
+                 port: int = 8080, map_as: str = "splats"):
         import viser
 
         with contextlib.redirect_stdout(io.StringIO()):  # viser's banner: gsjax prints the URL itself
@@ -126,10 +128,22 @@ class MapViewer:
         self._input = gui.add_image(placeholder, label="input", format="png")
         self._render = gui.add_image(placeholder, label="render", format="png")
         with gui.add_folder("Show"):
+            self._map_as = gui.add_dropdown(
+                "map as", MAP_AS, initial_value=map_as,
+                hint="points (the Gaussians' centres) cost a browser far less CPU than splats, whose depth sort runs "
+                     "continuously: the choice for a browser on the machine that runs the SLAM")
             self._toggles = {name: gui.add_checkbox(name, True)
                              for name in ("map", "estimate", "ground truth", "keyframes")}
         for name, checkbox in self._toggles.items():
             checkbox.on_update(lambda _, name=name: self._set_visible(name))
+        self._map_as_chosen = False  # by a user, in the GUI
+
+        @self._map_as.on_update
+        def _(event) -> None:
+            self._map_as_chosen |= event.client is not None
+            self._show_map()
+
+        self._snapshot: MapSnapshot | None = None
 
         @self._slider.on_update
         def _(event) -> None:
@@ -159,18 +173,35 @@ class MapViewer:
     def set_summary(self, markdown: str) -> None:
         self._summary.content = markdown
 
+    def suggest_map_as(self, map_as: str) -> None:
+        """Show the map as ``map_as`` unless a user has chosen in the GUI."""
+        if not self._map_as_chosen:
+            self._map_as.value = map_as
+
     def set_map(self, snapshot: MapSnapshot) -> None:
         """Show these Gaussians (replacing the previous map)."""
-        n = len(snapshot.centers)
-        covariances = (snapshot.scales.astype(np.float32) ** 2)[:, None, None] * np.eye(3, dtype=np.float32)
-        handle = self._server.scene.add_gaussian_splats(
-            "/map", centers=snapshot.centers.reshape(n, 3), covariances=covariances.reshape(n, 3, 3),
-            rgbs=snapshot.rgb.reshape(n, 3), opacities=snapshot.opacities.reshape(n, 1),
-            visible=self._toggles["map"].value)
-        self._nodes["map"] = [handle]
         with self._lock:
+            self._snapshot = snapshot
             self._map_version += 1
             self._shown_key = None  # the render shows the map: redo it
+        self._show_map()
+
+    def _show_map(self) -> None:
+        with self._lock:
+            snapshot = self._snapshot
+        if snapshot is None:
+            return
+        n, scene, visible = len(snapshot.centers), self._server.scene, self._toggles["map"].value
+        centers, rgb = snapshot.centers.reshape(n, 3), snapshot.rgb.reshape(n, 3)
+        if self._map_as.value == "points":
+            size = float(np.median(snapshot.scales)) if n else 0.01  # one std-dev across
+            handle = scene.add_point_cloud("/map", points=centers, colors=rgb, point_size=size,
+                                           point_shape="circle", visible=visible)
+        else:
+            covariances = (snapshot.scales.astype(np.float32) ** 2)[:, None, None] * np.eye(3, dtype=np.float32)
+            handle = scene.add_gaussian_splats("/map", centers=centers, covariances=covariances.reshape(n, 3, 3),
+                                               rgbs=rgb, opacities=snapshot.opacities.reshape(n, 1), visible=visible)
+        self._nodes["map"] = [handle]
 
     def set_trajectory(self, trajectory: TrajectorySnapshot) -> None:
         """Show these trajectories and keyframe frustums; the slider spans their frames."""

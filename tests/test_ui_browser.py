@@ -5,77 +5,26 @@ is done and waits for the map to appear, then for the finished run, and SIGTERM 
 ``report.html`` then opens from disk with every image and no request, and ``gsjax view`` serves the finished run
 (splats, keyframe images, the frame slider) until SIGINT. Every page must load without console errors or uncaught
 exceptions; the canvas must not be blank.
+
+(The file's name sorts it after the SLAM tests, whose compiled programs the subprocesses then find in the
+persistent compilation cache.)
 """
 
 from __future__ import annotations
 
 import os
-import queue
-import re
 import signal
-import subprocess
-import sys
-import threading
-import time
 from pathlib import Path
 
 import pytest
 
-from browser import chromium_path, decode, drawn_fraction, launch, open_page, wait_until
+from browser import Process, chromium_path, decode, drawn_fraction, launch, open_page, wait_until
 from slam_fixtures import FRAMES
 from test_slam_cli import TINY_RUN
 
 VIEWPORT = (1280, 860)
 PANEL_PX = 380  # the viser GUI panel on the right; the scene is measured left of it
 STARTUP_S = 240  # a cold start compiles the SLAM programs (a minute or more on 2 cores)
-
-
-class Process:
-    """A gsjax command in a subprocess, its output lines collected as they come."""
-
-    def __init__(self, args: list[str]):
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.popen = subprocess.Popen([sys.executable, "-m", "gsjax.cli", *args], stdout=subprocess.PIPE,
-                                      stderr=subprocess.STDOUT, text=True, env=env)
-        self.lines: list[str] = []
-        self._queue: queue.Queue = queue.Queue()
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self):
-        for line in self.popen.stdout:
-            self._queue.put(line.rstrip("\n"))
-        self._queue.put(None)
-
-    def wait_for(self, pattern: str, timeout_s: float) -> re.Match:
-        """The first output line matching ``pattern`` (waiting for it); AssertionError with the output otherwise."""
-        deadline = time.monotonic() + timeout_s
-        for line in self.lines:
-            if match := re.search(pattern, line):
-                return match
-        while time.monotonic() < deadline:
-            try:
-                line = self._queue.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            if line is None:
-                break
-            self.lines.append(line)
-            if match := re.search(pattern, line):
-                return match
-        raise AssertionError(f"no line matching {pattern!r}; output so far:\n" + "\n".join(self.lines))
-
-    def stop(self, signum: int, timeout_s: float = 30.0) -> int:
-        """Send ``signum``; the exit status, once the process has ended and all its output is in ``lines``."""
-        self.popen.send_signal(signum)
-        code = self.popen.wait(timeout=timeout_s)
-        while (line := self._queue.get(timeout=timeout_s)) is not None:
-            self.lines.append(line)
-        return code
-
-    def kill(self):
-        if self.popen.poll() is None:
-            self.popen.kill()
-            self.popen.wait()
 
 
 @pytest.fixture(scope="module")
@@ -126,9 +75,14 @@ def test_run_viewer_shows_the_map_live_and_stops_on_sigterm(browser, live_run, t
     process, url, _ = live_run
     page, log = open_page(browser, url, allowed=(url, "data:", "blob:"), width=VIEWPORT[0], height=VIEWPORT[1])
     try:
-        # The map appears when the first chunk is done, while the run goes on.
+        # The map appears when the first chunk is done, as points while the run goes on, then as splats.
+        map_as = page.locator("input.mantine-Select-input:visible").first
         wait_until(lambda: scene_drawn(page) > 0.2, STARTUP_S, "the live map in the canvas")
+        shown_as = map_as.input_value()
+        if not process.seen(r"shows the finished run"):
+            assert shown_as == "points"
         process.wait_for(r"shows the finished run", STARTUP_S)
+        wait_until(lambda: map_as.input_value() == "splats", 30, "the finished map as splats")
         last = FRAMES - 1
         wait_until(lambda: page.get_by_text(f"frame {last}; keyframe 4").count(), 60, "the last frame selected")
         wait_until(lambda: page.get_by_text("render, keyframe 4").count(), 60, "the keyframe's render")
