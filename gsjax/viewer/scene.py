@@ -14,6 +14,7 @@ import concurrent.futures
 import contextlib
 import io
 import math
+import socket
 import threading
 from typing import NamedTuple, Protocol
 
@@ -94,6 +95,18 @@ def _placeholder(camera: Camera) -> np.ndarray:
     return np.full((camera.height, camera.width, 3), 235, np.uint8)
 
 
+def check_listen_address(host: str) -> None:
+    """ValueError naming ``host`` unless a server can listen there (viser itself would wait forever)."""
+    try:
+        infos = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+        family, kind, proto, _, address = infos[0]
+        with socket.socket(family, kind, proto) as probe:
+            probe.bind(address)
+    except OSError as error:
+        raise ValueError(f"the viewer cannot listen on host {host!r} ({error}); use an address of this machine, "
+                         "e.g. 127.0.0.1 (the default) or 0.0.0.0 (every interface)") from None
+
+
 class MapViewer:
     """A viser server showing one run.
 
@@ -109,6 +122,7 @@ class MapViewer:
                  port: int = 8080, map_as: str = "splats"):
         import viser
 
+        check_listen_address(host)
         with contextlib.redirect_stdout(io.StringIO()):  # viser's banner: gsjax prints the URL itself
             self._server = viser.ViserServer(host=host, port=port, label=title, verbose=False)
         self._camera, self._images = camera, images
