@@ -346,6 +346,10 @@ def _cmd_run(args) -> int:
     _quiet_logs()
 
     _configure(args)  # bad overrides are reported before any data is read
+    if args.viewer:
+        from gsjax.viewer.scene import check_listen_address
+
+        check_listen_address(args.viewer_host)
     options = RunOptions(out=args.out, chunk=args.chunk, checkpoint_every=args.checkpoint_every, seed=args.seed,
                          resume=args.resume,
                          overwrite=args.overwrite, eval_every=args.eval_every, progress=not args.no_progress)

@@ -240,6 +240,11 @@ ERRORS = [
     Case("--out not empty, not a run", "tum", _out_not_empty, r"is not empty and holds no gsjax run"),
     Case("--resume with --overwrite", "tum", lambda r, o: _args("--resume", "--overwrite", named="--overwrite"),
          r"not allowed with argument --resume"),
+    Case("--viewer-host not of this machine", "tum",
+         lambda r, o: _args("--viewer", "--viewer-host", "10.255.255.1", named="'10.255.255.1'"),
+         r"viewer cannot listen on host"),
+    Case("--viewer-port out of range", "tum", lambda r, o: _args("--viewer", "--viewer-port", "70000",
+                                                                  named="--viewer-port"), r"port number 0-65535"),
     # 7-Scenes layout
     Case("7-Scenes colour image missing", "7scenes", lambda r, o: _unlink(scenes_file(r, 2, "color.png")),
          r"colour image is missing \(its depth image frame-000002.depth.png is present"),
