@@ -167,6 +167,10 @@ class MapViewer:
 
         self._nodes: dict[str, list] = {name: [] for name in self._toggles}
 
+        @self._server.on_client_connect
+        def _(_client) -> None:  # images are made only while someone looks: make the current ones now
+            self._select(int(self._slider.value))
+
     # ------------------------------------------------------------------------------------------ properties
 
     @property
@@ -178,9 +182,6 @@ class MapViewer:
         host = self._server.get_host()
         host = "127.0.0.1" if host in ("0.0.0.0", "") else host
         return f"http://{'[' + host + ']' if ':' in host else host}:{self.port}"
-
-    def has_clients(self) -> bool:
-        return bool(self._server.get_clients())
 
     # ------------------------------------------------------------------------------------------ updates
 
@@ -320,6 +321,8 @@ class MapViewer:
             return
         keyframe = int(earlier.max())
         self._keyframe_label.content = f"frame {frame}; keyframe {keyframe}: its input and the map rendered at its pose"
+        if not self._server.get_clients():
+            return  # nobody to show them to (a run's live viewer with no browser costs no render)
         with self._lock:
             key = (keyframe, self._map_version)
             if key == self._shown_key:
