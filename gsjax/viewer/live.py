@@ -21,8 +21,9 @@ class LiveViewer:
     host, so the SLAM loop may go on at once). ``seconds`` is the time the updates took (the run's cost).
 
     While the run goes on the map is shown as points: viser's splats keep a depth sort running in the browser (more
-    than a core of a 2-core machine), which slows a run whose browser shares its cores by ~10 %, points by ~3 %
-    (``experiments/bench_viewer.py``). :meth:`finished` shows the splats, unless a user chose in the GUI.
+    than a core of a 2-core machine): a browser sharing the run's two cores slowed it by 12-13 % with splats, 3-7 %
+    with points (``experiments/bench_viewer.py``). :meth:`finished` shows the splats, unless a user chose in the
+    GUI.
     """
 
     def __init__(self, sequence: Sequence, config: SlamConfig, host: str = "127.0.0.1", port: int = 8080,
