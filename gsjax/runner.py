@@ -31,6 +31,7 @@ import numpy as np
 from gsjax.config_text import config_to_dict
 from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
+from gsjax.eval.trajectory import ate_so_far
 from gsjax.io.atomic import atomic_write_json, remove_stale_temporaries
 from gsjax.io.run_dir import check_run_dir, clear_previous_run
 from gsjax.progress import Progress
@@ -87,19 +88,6 @@ class RunOptions:
 
 def _outputs_to_lists(outputs: StepOutputs, count: int) -> dict:
     return {name: np.asarray(value)[:count].tolist() for name, value in outputs._asdict().items()}
-
-
-def _ate_so_far(w2c: np.ndarray, gt_c2w: np.ndarray, gt_valid: np.ndarray) -> float | None:
-    """ATE (m) of the frames so far that have ground truth (the rigid alignment absorbs the world frames)."""
-    from gsjax.eval.trajectory import ate_rmse_c2w
-
-    n = len(w2c)
-    if gt_valid[:n].sum() < 3:
-        return None
-    try:
-        return ate_rmse_c2w(np.linalg.inv(w2c), gt_c2w[:n], gt_valid[:n]).value_m
-    except ValueError:
-        return None
 
 
 def _camera_record(sequence: Sequence) -> dict:
@@ -272,7 +260,7 @@ def run_slam(
                               seconds_max=max(ledger["seconds_max"], seconds), bytes_last=written,
                               bytes_max=max(ledger["bytes_max"], written))
             w2c = np.asarray(outputs["w2c"], np.float64)
-            ate = _ate_so_far(w2c, gt_c2w, gt_valid)
+            ate = ate_so_far(np.linalg.inv(w2c), gt_c2w, gt_valid)
             fields = dict(loss=f"{outputs['tracking_loss'][-1]:.1f}", gaussians=outputs["num_gaussians"][-1],
                           fps=f"{done / max(timings['slam_s'], 1e-9):.2f}")
             if ate is not None:

@@ -211,6 +211,16 @@ def ate_rmse_c2w(est_c2w, gt_c2w, valid=None, with_scale: bool = False) -> AteRe
     return AteResult(_rmse(errors), errors, alignment, used)
 
 
+def ate_so_far(est_c2w, gt_c2w, gt_valid) -> float | None:
+    """ATE RMSE (m) of the first ``len(est_c2w)`` frames against ``gt_c2w`` [>= n, 4, 4] where ``gt_valid``, or
+    None while fewer than ``MIN_FRAMES`` of them have ground truth (a run in progress)."""
+    n = len(est_c2w)
+    try:
+        return ate_rmse_c2w(est_c2w, np.asarray(gt_c2w)[:n], np.asarray(gt_valid)[:n]).value_m
+    except ValueError:
+        return None
+
+
 def ground_truth_on_estimate(est_c2w, gt_c2w, valid=None) -> tuple[np.ndarray, np.ndarray] | None:
     """The ground truth drawn in the estimate's world frame, for display: (the frames with ground truth and a finite
     estimate [n] int, their GT poses [n, 4, 4]), or None when there is no such frame.

@@ -47,11 +47,6 @@ def plot_trajectory_top_view(
     title: str | None = None,
     dpi: int = 120,
 ) -> Path:
-    """Write :func:`trajectory_top_view` as a PNG file (atomically); returns the path."""
-    return _save(trajectory_top_view(est_positions, gt_positions, plane, title), path, dpi)
-
-
-def trajectory_top_view(est_positions, gt_positions, plane: str = "auto", title: str | None = None) -> Figure:
     """Top view of the estimated camera centres (already aligned to the GT) and the GT centres, with the
     per-frame offsets drawn as thin grey segments.
 
@@ -88,7 +83,7 @@ def trajectory_top_view(est_positions, gt_positions, plane: str = "auto", title:
     ax.legend(loc="best", fontsize=8)
     if title:
         ax.set_title(title)
-    return fig
+    return _save(fig, path, dpi)
 
 
 def plot_errors_over_time(

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.report.figures import Series, series_png, trajectory_png
+from gsjax.report.figures import Series, series_png
 from gsjax.report.run_record import RunRecord
 
 # How every page gsjax writes begins (so that rewriting one never replaces a file gsjax did not write).
@@ -165,8 +165,11 @@ def _metrics_section(runs: list[RunRecord]) -> str:
 
 
 def _trajectory_section(runs: list[RunRecord]) -> str:
-    cards = [f'<div class="card"><h3>{_e(run.name)}</h3>{_figure(trajectory_png(run), "trajectory top view")}'
-             "</div>" for run in runs]
+    def plot(run: RunRecord) -> str:  # the run's own trajectory.png
+        path = run.path / "trajectory.png"
+        return _figure(path.read_bytes(), "trajectory top view") if path.is_file() else _note("No trajectory.png.")
+
+    cards = [f'<div class="card"><h3>{_e(run.name)}</h3>{plot(run)}</div>' for run in runs]
     intro = _note("Top view of the camera centres: the estimate after the rigid alignment onto the ground truth that "
                   "the ATE uses; grey segments join each frame's estimate to its ground truth.")
     return intro + f'<div class="grid">{"".join(cards)}</div>'

@@ -57,22 +57,14 @@ class RunRecord:
         """[T, 4, 4] the estimated camera-to-world poses in the map's frame (what renders the map at each frame)."""
         return np.linalg.inv(self.world_from_map) @ self.est_c2w
 
-    def ground_truth(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(estimate rows [n] int, the GT camera-to-world [n, 4, 4] associated with them by timestamp, in the
-        dataset's frame), or None without ground truth."""
+    def ground_truth_in_map(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(estimate rows [n] int, the GT camera-to-world [n, 4, 4] associated with them by timestamp, in the map's
+        frame, starting at the estimate's pose: :func:`gsjax.eval.trajectory.ground_truth_on_estimate`), or None
+        without ground truth."""
         if self.gt_c2w is None:
             return None
-        est_rows, gt_rows = associate_timestamps(self.timestamps, self.gt_timestamps)
-        return (est_rows, self.gt_c2w[gt_rows]) if len(est_rows) else None
-
-    def ground_truth_in_map(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(estimate rows [n] int, their GT camera-to-world [n, 4, 4] in the map's frame, starting at the estimate's
-        pose: :func:`gsjax.eval.trajectory.ground_truth_on_estimate`), or None without ground truth."""
-        pairs = self.ground_truth()
-        if pairs is None:
-            return None
-        rows, gt_c2w = pairs
-        on_estimate = ground_truth_on_estimate(self.map_c2w()[rows], gt_c2w)
+        rows, gt_rows = associate_timestamps(self.timestamps, self.gt_timestamps)
+        on_estimate = ground_truth_on_estimate(self.map_c2w()[rows], self.gt_c2w[gt_rows]) if len(rows) else None
         return None if on_estimate is None else (rows[on_estimate[0]], on_estimate[1])
 
 

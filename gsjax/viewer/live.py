@@ -8,7 +8,7 @@ import jax
 import numpy as np
 
 from gsjax.data.sequence import Sequence
-from gsjax.eval.trajectory import ate_rmse_c2w, ground_truth_on_estimate
+from gsjax.eval.trajectory import ate_so_far, ground_truth_on_estimate
 from gsjax.io.images import to_uint8
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import SlamState
@@ -57,10 +57,7 @@ class LiveViewer:
         n = len(c2w)
         aligned = ground_truth_on_estimate(c2w, self._gt_c2w[:n], self._gt_valid[:n])
         gt_frames, gt_c2w = aligned if aligned is not None else (None, None)
-        try:
-            ate_m = ate_rmse_c2w(c2w, self._gt_c2w[:n], self._gt_valid[:n]).value_m
-        except ValueError:  # fewer than 3 frames with ground truth so far
-            ate_m = None
+        ate_m = ate_so_far(c2w, self._gt_c2w, self._gt_valid)
         snapshot = MapSnapshot.of(gaussians)
         self.viewer.set_map(snapshot)
         self.viewer.set_trajectory(TrajectorySnapshot(c2w, gt_frames, gt_c2w, keyframes))

@@ -21,6 +21,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 from gsjax.gaussians import Gaussians
+from gsjax.io.trajectory import rotation_to_quaternion_wxyz
 
 ESTIMATE_RGB = (31, 119, 180)
 GROUND_TRUTH_RGB = (40, 40, 40)
@@ -77,13 +78,6 @@ class FrameImages(Protocol):
     def input_image(self, frame: int) -> np.ndarray | None: ...
 
     def render_image(self, frame: int) -> np.ndarray | None: ...
-
-
-def _wxyz(rotation: np.ndarray) -> np.ndarray:
-    """A rotation matrix [3, 3] -> unit quaternion (w, x, y, z)."""
-    from gsjax.io.trajectory import rotation_to_quaternion_wxyz
-
-    return rotation_to_quaternion_wxyz(rotation)
 
 
 def _enlarged(image: np.ndarray) -> np.ndarray:
@@ -220,7 +214,6 @@ class MapViewer:
 
     def set_trajectory(self, trajectory: TrajectorySnapshot) -> None:
         """Show these trajectories and keyframe frustums; the slider spans their frames."""
-        scene = self._server.scene
         scale = self._frustum_scale(trajectory)
         visible = {name: box.value for name, box in self._toggles.items()}
         self._nodes["estimate"] = [self._path("/trajectory/estimate", trajectory.c2w, ESTIMATE_RGB, scale,
@@ -281,7 +274,7 @@ class MapViewer:
         camera = self._camera
         return self._server.scene.add_camera_frustum(
             name, fov=2.0 * math.atan2(camera.height / 2.0, camera.fy), aspect=camera.width / camera.height,
-            scale=scale, thickness=thickness * scale, color=rgb, wxyz=_wxyz(c2w[:3, :3]), position=c2w[:3, 3],
+            scale=scale, thickness=thickness * scale, color=rgb, wxyz=rotation_to_quaternion_wxyz(c2w[:3, :3]), position=c2w[:3, 3],
             visible=visible)
 
     def _set_initial_camera(self, trajectory: TrajectorySnapshot, scale: float) -> None:

@@ -50,8 +50,7 @@ class RunImages:
         self._slot = {int(frame): slot for slot, frame in enumerate(keyframes)}
 
     def input_image(self, frame: int) -> np.ndarray | None:
-        path = self._directory / f"{self._slot.get(frame, -1):05d}.npz"
-        if frame not in self._slot or not path.is_file():
+        if frame not in self._slot or not (path := self._directory / f"{self._slot[frame]:05d}.npz").is_file():
             return None
         try:
             with np.load(path, allow_pickle=False) as data:
