@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from maps import dense_surface_map  # noqa: E402
+from gsjax.data.room import dense_surface_map  # noqa: E402
 
 from gsjax.camera import se3_exp  # noqa: E402
 from gsjax.gaussians import Gaussians  # noqa: E402

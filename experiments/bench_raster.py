@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from maps import dense_surface_map  # noqa: E402
+from gsjax.data.room import dense_surface_map  # noqa: E402
 
 from gsjax.raster import RasterSettings, render  # noqa: E402
 from gsjax.raster.binning import TileGrid, bin_gaussians  # noqa: E402

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from maps import dense_surface_map  # noqa: E402
+from gsjax.data.room import dense_surface_map  # noqa: E402
 
 from gsjax.compilation_cache import enable_compilation_cache  # noqa: E402
 from gsjax.raster import RasterSettings, render  # noqa: E402

@@ -441,6 +441,66 @@ def _cmd_view(args) -> int:
     return 0
 
 
+def _backends(text: str) -> list[str]:
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    bad = [x for x in names if x not in ("xla", "pallas")]
+    if not names or bad:
+        raise argparse.ArgumentTypeError(f"{text!r}: a comma-separated list of xla, pallas")
+    return names
+
+
+def _sizes(text: str) -> list[tuple[int, int]]:
+    from gsjax.bench import parse_size
+
+    try:
+        return [parse_size(x.strip()) for x in text.split(",") if x.strip()]
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err).removeprefix("--sizes: ")) from None
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a positive integer")
+    return value
+
+
+def _add_bench(sub) -> None:
+    p = sub.add_parser(
+        "bench", help="rasterizer and tracking-iteration speed and memory per backend on this device",
+        description="Time the render forward, forward+backward and one tracking iteration (median after a warm-up, "
+        "compile time apart), ns per pixel x candidate and the peak memory of a tracking iteration, for each "
+        "backend and image size, on a SplaTAM-density map of a synthetic room. Prints a table and writes JSON. "
+        "On a CPU the pallas backend runs in interpret mode (slow: a correctness aid, not a speed).",
+        parents=[COMMON])
+    p.add_argument("--backend", type=_backends, default=None, metavar="LIST",
+                   help="comma-separated backends: xla, pallas (default: xla,pallas on a GPU, xla elsewhere)")
+    p.add_argument("--sizes", type=_sizes, default=[(640, 480), (1200, 680)], metavar="WxH,...",
+                   help="image sizes (default 640x480,1200x680)")
+    p.add_argument("--gaussians", type=_positive, default=None, metavar="N",
+                   help="active Gaussians in the map (default: about one per pixel, SplaTAM's density)")
+    p.add_argument("--k", type=_positive, default=96, help="contributor slots per pixel (default 96, SLAM's)")
+    p.add_argument("--repeats", type=_positive, default=5, help="timed runs after the warm-up (default 5)")
+    p.add_argument("--out", type=Path, default=Path("bench.json"), help="the JSON to write (default bench.json)")
+    p.set_defaults(func=_cmd_bench)
+
+
+def _cmd_bench(args) -> int:
+    from gsjax.bench import run_bench
+    from gsjax.io.atomic import atomic_write_json
+    from gsjax.raster import pallas
+
+    if args.out.is_dir():
+        raise UserError(f"--out {args.out} is a directory; give the JSON file to write")
+    backends = args.backend or (["xla", "pallas"] if pallas.on_gpu() else ["xla"])
+    result = run_bench(backends, args.sizes, args.gaussians, args.repeats, args.k, log=lambda line: print(line, flush=True))
+    print(f"wrote {atomic_write_json(args.out, result)}")
+    return 0
+
+
 def _add_sweep(sub) -> None:
     p = sub.add_parser(
         "sweep",
@@ -555,7 +615,7 @@ def _quiet_logs() -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="gsjax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_run, _add_sweep, _add_landscape, _add_report, _add_view, _add_eval, _add_synth):
+    for add in (_add_run, _add_sweep, _add_landscape, _add_report, _add_view, _add_bench, _add_eval, _add_synth):
         add(sub)
     return parser
 

@@ -245,6 +245,8 @@ ERRORS = [
          r"viewer cannot listen on host"),
     Case("--viewer-port out of range", "tum", lambda r, o: _args("--viewer", "--viewer-port", "70000",
                                                                   named="--viewer-port"), r"port number 0-65535"),
+    Case("--raster.backend unknown", "tum", lambda r, o: _args("--raster.backend", "cuda", named="--raster.backend"),
+         r"must be one of auto, xla, pallas, got 'cuda'"),
     # 7-Scenes layout
     Case("7-Scenes colour image missing", "7scenes", lambda r, o: _unlink(scenes_file(r, 2, "color.png")),
          r"colour image is missing \(its depth image frame-000002.depth.png is present"),

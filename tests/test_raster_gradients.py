@@ -58,9 +58,10 @@ def assert_same_discrete_state(a, b, label):
         assert x.shape == y.shape and np.array_equal(x, y), f"{label}: discrete state {i} differs: h too large"
 
 
+@pytest.mark.parametrize("backend", ["xla", "pallas"])  # pallas: its jvp runs on the XLA path (for_forward_mode)
 @pytest.mark.parametrize("name", sorted(scenes.GRADIENT_SCENES))
-def test_gradients_match_finite_differences_of_the_reference(name):
-    render_settings = settings()
+def test_gradients_match_finite_differences_of_the_reference(name, backend):
+    render_settings = settings(backend=backend)
     gaussians, w2c, intr = scenes.GRADIENT_SCENES[name](GRAD_SEED)
     weights = loss_weights(intr.height, intr.width)
     weights32 = {k: jnp.asarray(v, jnp.float32) for k, v in weights.items()}
@@ -99,7 +100,8 @@ def test_gradients_match_finite_differences_of_the_reference(name):
         tangents = tuple(
             jnp.asarray(direction if i == index else np.zeros(np.shape(p)), jnp.float32) for i, p in enumerate(primals)
         )
-        _, by_jvp = _loss_jvp(primals, tangents, gaussians.active, w2c, intr, weights32, render_settings)
+        _, by_jvp = _loss_jvp(primals, tangents, gaussians.active, w2c, intr, weights32,
+                              render_settings.for_forward_mode())
         by_jvp = float(by_jvp)
         err_grad = abs(by_grad - finite_difference) / abs(finite_difference)
         err_jvp = abs(by_jvp - finite_difference) / abs(finite_difference)
@@ -110,7 +112,7 @@ def test_gradients_match_finite_differences_of_the_reference(name):
         assert abs(finite_difference) > 1e-3, f"{name}/{field}: derivative too small to test ({finite_difference})"
         assert err_grad <= REL_TOL, f"{name}/{field}: grad {by_grad} vs finite difference {finite_difference}"
         assert err_jvp <= REL_TOL, f"{name}/{field}: jvp {by_jvp} vs finite difference {finite_difference}"
-    print(f"\n{name}: loss {float(value):.6f} (reference {ref_value:.6f})\n" + "\n".join(lines))
+    print(f"\n{name} ({backend}): loss {float(value):.6f} (reference {ref_value:.6f})\n" + "\n".join(lines))
 
     # free slots hold garbage (finite, would be visible) and get exactly zero gradient
     for field, grad in zip(FIELDS, grads[:4]):

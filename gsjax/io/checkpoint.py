@@ -33,9 +33,11 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from gsjax.io.atomic import atomic_write_bytes, remove_stale_temporaries
-from gsjax.slam.state import KeyframeBuffer, SlamState
+from gsjax.slam.state import KeyframeBuffer, SlamState, encode_color, encode_depth
 
 _IMAGES = ("color", "depth")  # the keyframe fields stored as files, one per slot
+# Checkpoints written before keyframes were stored compactly hold float32 images: encoded on restore.
+_ENCODE = {"color": lambda x: np.asarray(encode_color(x)), "depth": lambda x: np.asarray(encode_depth(x))}
 
 
 class Restored(NamedTuple):
@@ -174,11 +176,11 @@ class Checkpoints:
         count = int(tree["keyframes"]["count"])
         if count != meta["keyframes_saved"]:
             raise ValueError(f"the state holds {count} keyframes, the record {meta['keyframes_saved']}")
-        images = {name: np.zeros(getattr(template.keyframes, name).shape, np.float32) for name in _IMAGES}
+        images = {name: np.zeros_like(getattr(template.keyframes, name)) for name in _IMAGES}
         for slot in range(count):
             stored = _load_npz(self.directory / "keyframes" / f"{slot:05d}.npz")
             for name in _IMAGES:
-                images[name][slot] = stored[name]
+                images[name][slot] = _ENCODE[name](stored[name]) if stored[name].dtype.kind == "f" else stored[name]
         keyframes = KeyframeBuffer(**tree.pop("keyframes"), **images)
         state = SlamState(**tree, keyframes=keyframes)
         state = jax.tree_util.tree_map(jnp.asarray, state)

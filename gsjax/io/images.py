@@ -18,11 +18,13 @@ from gsjax.io.atomic import atomic_write_bytes
 
 
 def to_uint8(color) -> np.ndarray:
-    """[H, W, 3] float in [0, 1] -> uint8 (clipped, rounded to nearest)."""
-    color = np.asarray(color, np.float64)
+    """[H, W, 3] float in [0, 1] -> uint8 (clipped, rounded to nearest); uint8 passes through."""
+    color = np.asarray(color)
     if color.ndim != 3 or color.shape[-1] != 3:
         raise ValueError(f"colour image must have shape [H, W, 3], got {list(color.shape)}")
-    return np.round(np.clip(np.nan_to_num(color), 0.0, 1.0) * 255.0).astype(np.uint8)
+    if color.dtype == np.uint8:
+        return color
+    return np.round(np.clip(np.nan_to_num(color.astype(np.float64)), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def _depth_and_valid(depth) -> tuple[np.ndarray, np.ndarray]:

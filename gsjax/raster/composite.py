@@ -53,28 +53,25 @@ class Composite(NamedTuple):
     depth_sq: jax.Array
 
 
-def gather_slots(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near, ids: jax.Array) -> Slots:
-    """Project the Gaussians (with gradients) and gather them at slot indices ``ids`` [K, P] (-1 = empty)
-    -> :class:`Slots` [K, P]."""
-    valid = ids >= 0
-    index = jnp.maximum(ids, 0)
+def splat_table(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near) -> Slots:
+    """Project every Gaussian (with gradients) -> :class:`Slots` with fields [N], one per Gaussian slot."""
     g = sanitized(gaussians)
     x, y, z = to_camera(g.means[:, 0], g.means[:, 1], g.means[:, 2], w2c)
     s = splat(x, y, z, g.log_scales, g.logit_opacities, intrinsics, near)
-    column = lambda values: values[index]  # noqa: E731
-    return Slots(
-        u=column(s.u),
-        v=column(s.v),
-        conic_a=column(s.conic_a),
-        conic_b=column(s.conic_b),
-        conic_c=column(s.conic_c),
-        opacity=column(s.opacity),
-        r=column(g.rgb[:, 0]),
-        g=column(g.rgb[:, 1]),
-        b=column(g.rgb[:, 2]),
-        depth=column(s.depth),
-        valid=valid,
-    )
+    return Slots(u=s.u, v=s.v, conic_a=s.conic_a, conic_b=s.conic_b, conic_c=s.conic_c, opacity=s.opacity,
+                 r=g.rgb[:, 0], g=g.rgb[:, 1], b=g.rgb[:, 2], depth=s.depth, valid=jnp.ones_like(s.u, bool))
+
+
+def gather(table: Slots, ids: jax.Array) -> Slots:
+    """The rows of a per-Gaussian ``table`` (:func:`splat_table`) at slot indices ``ids`` [K, P] (-1 = empty)."""
+    index = jnp.maximum(ids, 0)
+    return Slots(*(column[index] for column in table[:-1]), valid=ids >= 0)
+
+
+def gather_slots(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near, ids: jax.Array) -> Slots:
+    """Project the Gaussians (with gradients) and gather them at slot indices ``ids`` [K, P] (-1 = empty)
+    -> :class:`Slots` [K, P]."""
+    return gather(splat_table(gaussians, w2c, intrinsics, near), ids)
 
 
 def slot_alpha(slots: Slots, pixels: jax.Array, u: jax.Array | None = None, v: jax.Array | None = None) -> jax.Array:

@@ -17,12 +17,14 @@ from gsjax.camera import Intrinsics, rigidity_error
 from gsjax.checks import is_checkable
 from gsjax.gaussians import Gaussians, check_gaussians
 from gsjax.raster import cbknn as cb
+from gsjax.raster import pallas
 from gsjax.raster.binning import TileGrid, bin_gaussians
-from gsjax.raster.composite import blend_weights, composite, gather_slots, slot_alpha
+from gsjax.raster.composite import Composite, blend_weights, composite, gather, slot_alpha, splat_table
 from gsjax.raster.project import project
 from gsjax.raster.select import select_contributors
 
 _RIGID_TOL = 1e-3
+BACKENDS = ("auto", "xla", "pallas")
 
 
 @jax.tree_util.register_dataclass
@@ -39,8 +41,15 @@ class RasterSettings:
         bounded by a few per pixel when the map holds many more Gaussians than are in view (a SLAM map's capacity),
         and never less than every tile's full list when N is small. Pairs beyond L (the farthest) are counted
         in the stats.
-      tiles_per_batch: at most this many tiles are processed together in the selection pass (bounds its memory;
-        the tiles are split into equal batches).
+      tiles_per_batch: at most this many tiles are processed together in the XLA selection pass (bounds its
+        memory; the tiles are split into equal batches).
+      slots_per_batch: at most this many per-pixel slots (K x pixels) are composited together; larger images are
+        composited in equal batches of tiles, each recomputed in the backward pass, so the slot arrays' memory is
+        bounded whatever the image size (at the cost of a second forward of the compositing).
+      backend: ``"xla"`` (the reference), ``"pallas"`` (Pallas kernels for the selection walk and the compositing;
+        compiled on a GPU, interpreted elsewhere, which is slow and meant for tests) or ``"auto"`` (pallas on a
+        GPU, xla elsewhere). Same outputs either way; the pallas path has no forward mode (see
+        :meth:`for_forward_mode`).
       near: near-plane distance (m); Gaussians with camera z <= near are culled.
 
     The defaults render dense SplaTAM-like maps without truncation (measured in ``experiments/raster_defaults.py``);
@@ -53,10 +62,14 @@ class RasterSettings:
     intersections_per_gaussian: float = dataclasses.field(default=4.0, metadata=dict(static=True))
     intersections_per_pixel: float = dataclasses.field(default=16.0, metadata=dict(static=True))
     tiles_per_batch: int = dataclasses.field(default=512, metadata=dict(static=True))
+    slots_per_batch: int = dataclasses.field(default=1 << 25, metadata=dict(static=True))
+    backend: str = dataclasses.field(default="auto", metadata=dict(static=True))
     near: float = 0.2
 
     def __post_init__(self):
-        for name in ("tile_size", "tile_capacity", "max_contributors", "tiles_per_batch"):
+        if self.backend not in BACKENDS:
+            raise ValueError(f"RasterSettings.backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
+        for name in ("tile_size", "tile_capacity", "max_contributors", "tiles_per_batch", "slots_per_batch"):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"RasterSettings.{name} must be a positive int, got {value!r}")
@@ -68,6 +81,16 @@ class RasterSettings:
             np.isfinite(np.asarray(self.near)).all() and np.all(np.asarray(self.near) > 0)
         ):
             raise ValueError(f"RasterSettings.near must be a positive finite number (m), got {self.near!r}")
+
+    @property
+    def uses_pallas(self) -> bool:
+        """Whether renders run the Pallas kernels (``"pallas"``, or ``"auto"`` on a GPU)."""
+        return self.backend == "pallas" or (self.backend == "auto" and pallas.on_gpu())
+
+    def for_forward_mode(self) -> "RasterSettings":
+        """These settings on the XLA path when they would use Pallas: ``jax.jvp``/``jax.jacfwd`` need it (the
+        Pallas compositing is a ``custom_vjp``). The two paths give the same renders."""
+        return dataclasses.replace(self, backend="xla") if self.uses_pallas else self
 
     def intersection_capacity(self, num_gaussians: int, grid: TileGrid) -> int:
         """The static number L of (tile, Gaussian) pairs binned for a map of ``num_gaussians`` slots."""
@@ -227,20 +250,28 @@ def _render(
         )
     with jax.named_scope("select"):
         selection = select_contributors(
-            projected, tiles, grid, settings.max_contributors, settings.tiles_per_batch
+            projected, tiles, grid, settings.max_contributors, settings.tiles_per_batch, settings.uses_pallas
         )
-    with jax.named_scope("composite"):
-        slots = gather_slots(gaussians, w2c, intrinsics, settings.near, selection.ids)
-        pixels = grid.pixel_coords().reshape(-1, 2)
-        alpha = slot_alpha(slots, pixels)
-        weights, final_transmittance = blend_weights(alpha)
-        cbknn_stats = None
-        if cbknn is None:
-            out = composite(weights, slots.r, slots.g, slots.b, slots.depth)
-        else:
-            with jax.named_scope("cbknn"):
-                out, cbknn_stats = _smoothed(projected, slots, pixels, alpha, weights, selection, grid, cbknn, motion)
     in_image = grid.in_image()
+    with jax.named_scope("composite"):
+        pixels = grid.pixel_coords().reshape(-1, 2)
+        k_pixel = None
+        if cbknn is not None:
+            rho = cb.density_map(projected, grid.height, grid.width, cbknn.cell)
+            k_map = cb.kernel_size_map(rho, cbknn, motion)
+            k_pixel = k_map.reshape(-1)[cb.pixel_cells(pixels, grid.height, grid.width, cbknn.cell)]
+        table = splat_table(gaussians, w2c, intrinsics, settings.near)
+        out, final_transmittance, shift_sum, num_corrected = _composite_batched(
+            table, selection.ids, pixels, in_image, k_pixel, cbknn, settings, grid
+        )
+        cbknn_stats = None
+        if cbknn is not None:
+            cbknn_stats = cb.CBKNNStats(
+                k_map=k_map,
+                rho_map=rho,
+                mean_shift_px=shift_sum / jnp.maximum(num_corrected, 1),
+                fraction_fewer_than_k=jnp.sum(in_image & (selection.num_kept < k_pixel)) / jnp.sum(in_image),
+            )
     truncated = in_image & (selection.out_of_k | selection.cut_by_list)
     # Where K cut the walk, what is left is the transmittance after the K-th contributor, i.e. after compositing.
     residual = jnp.where(
@@ -267,21 +298,54 @@ def _render(
     )
 
 
-def _smoothed(projected, slots, pixels, alpha, weights, selection, grid, cbknn, motion):
-    """CB-KNN compositing (method_spec D.5, D.7) of the selected slots; returns (Composite, CBKNNStats)."""
-    height, width = grid.height, grid.width
-    rho = cb.density_map(projected, height, width, cbknn.cell)
-    k_map = cb.kernel_size_map(rho, cbknn, motion)
-    k_pixel = k_map.reshape(-1)[cb.pixel_cells(pixels, height, width, cbknn.cell)]
+def _blend(alpha, r, g, b, depth, use_pallas: bool) -> tuple[Composite, jax.Array]:
+    """Composite slots [K, P] front to back -> (Composite, final transmittance [P])."""
+    if use_pallas:
+        cr, cg, cb_, d, sil, dsq, final = pallas.composite_slots(alpha, r, g, b, depth)
+        return Composite(jnp.stack([cr, cg, cb_], axis=-1), d, sil, dsq), final
+    weights, final = blend_weights(alpha)
+    return composite(weights, r, g, b, depth), final
+
+
+def _composite_pixels(table, ids, pixels, in_image, k_pixel, cbknn, use_pallas: bool):
+    """Gather, alpha and blend of pixels [P] with slots ``ids`` [K, P]; CB-KNN (method_spec D.5, D.7) when
+    ``cbknn``. Returns (Composite, canonical final transmittance [P], CB-KNN shift sum (px), corrected slots)."""
+    slots = gather(table, ids)
+    alpha = slot_alpha(slots, pixels)
+    if cbknn is None:
+        out, final = _blend(alpha, slots.r, slots.g, slots.b, slots.depth, use_pallas)
+        return out, final, jnp.float32(0.0), jnp.int32(0)
+    # CB-KNN needs the canonical weights themselves (consensus colour, top-weight selection).
+    weights, final = blend_weights(alpha)
     corrected = cb.correct_slots(slots, pixels, alpha, weights, k_pixel, cbknn)
-    smoothed_weights, _ = blend_weights(corrected.alpha)
-    out = composite(smoothed_weights, corrected.r, corrected.g, corrected.b, slots.depth)
-    in_image = grid.in_image()
-    num_corrected = jnp.sum(corrected.corrected & in_image[None, :])
-    stats = cb.CBKNNStats(
-        k_map=k_map,
-        rho_map=rho,
-        mean_shift_px=jnp.sum(jnp.where(in_image[None, :], corrected.shift_px, 0.0)) / jnp.maximum(num_corrected, 1),
-        fraction_fewer_than_k=jnp.sum(in_image & (selection.num_kept < k_pixel)) / jnp.sum(in_image),
+    out, _ = _blend(corrected.alpha, corrected.r, corrected.g, corrected.b, slots.depth, use_pallas)
+    shift_sum = jnp.sum(jnp.where(in_image[None, :], corrected.shift_px, 0.0))
+    return out, final, shift_sum, jnp.sum(corrected.corrected & in_image[None, :], dtype=jnp.int32)
+
+
+def _composite_batched(table, ids, pixels, in_image, k_pixel, cbknn, settings: RasterSettings, grid: TileGrid):
+    """:func:`_composite_pixels` over all pixels, in equal batches of tiles when the K x P slots exceed
+    ``settings.slots_per_batch`` (each batch rematerialised in the backward pass, so memory stays bounded)."""
+    use_pallas = settings.uses_pallas
+    num_slots = ids.shape[0]
+    num_batches = min(grid.num_tiles, -(-num_slots * ids.shape[1] // settings.slots_per_batch))
+    if num_batches == 1:
+        return _composite_pixels(table, ids, pixels, in_image, k_pixel, cbknn, use_pallas)
+    tiles = -(-grid.num_tiles // num_batches)
+    width = tiles * grid.pixels_per_tile
+    fill = num_batches * width - ids.shape[1]
+    k_pixel = jnp.zeros(ids.shape[1], jnp.int32) if k_pixel is None else k_pixel
+    per_pixel = (
+        jnp.pad(ids, ((0, 0), (0, fill)), constant_values=-1).reshape(num_slots, num_batches, width).swapaxes(0, 1),
+        jnp.pad(pixels, ((0, fill), (0, 0))).reshape(num_batches, width, 2),
+        jnp.pad(in_image, (0, fill)).reshape(num_batches, width),
+        jnp.pad(k_pixel, (0, fill)).reshape(num_batches, width),
     )
-    return out, stats
+
+    @jax.checkpoint
+    def batch(args):
+        return _composite_pixels(table, *args, cbknn, use_pallas)
+
+    out, final, shift_sum, num_corrected = jax.lax.map(batch, per_pixel)
+    crop = lambda x: x.reshape((-1,) + x.shape[2:])[: ids.shape[1]]  # noqa: E731
+    return jax.tree_util.tree_map(crop, out), crop(final), jnp.sum(shift_sum), jnp.sum(num_corrected)

@@ -21,11 +21,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from gsjax.raster import pallas
 from gsjax.raster.binning import TileGrid, TileLists
 from gsjax.raster.project import ALPHA_MIN, Projected, gaussian_alpha
 
-T_MIN = 1e-4  # the walk stops before transmittance would fall below this
-_WORD = 32
+T_MIN = pallas.T_MIN  # the walk stops before transmittance would fall below this
+_WORD = pallas.WORD
 
 
 class Selection(NamedTuple):
@@ -75,9 +76,7 @@ def first_set_bits(words: jax.Array, k: int) -> jax.Array:
 def _walk(features, ids, count, pixels, incomplete, k):
     """Tiles [b]: features [b, M, 6] = (u, v, a, b, c, opacity), ids [b, M], count [b] list lengths,
     pixels [b, T^2, 2], incomplete [b]. A while loop over list entries (forward only, no gradient) that stops at
-    the longest list, or earlier once every pixel has terminated. Returns the selected ids [k, b, T^2]
-    (slot-major, as the composite reads them) and, per pixel [b, T^2], num_kept, out_of_k, cut_by_list and the
-    transmittance at the end of the walk.
+    the longest list, or earlier once every pixel has terminated. Returns :func:`_first_k`'s tuple.
 
     Per-pixel state is laid out [b, T^2] (tile features broadcast along the minor axis): on XLA:CPU this is about
     5x faster than [T^2, b] for 8x8 tiles, and 4x4 tiles ([b, 16]) are as slow per pixel as the transposed layout.
@@ -105,11 +104,18 @@ def _walk(features, ids, count, pixels, incomplete, k):
 
     init = (jnp.int32(0), jnp.ones(shape, jnp.float32), jnp.zeros((num_entries,) + shape, bool))
     _, transmittance, keep = jax.lax.while_loop(cond, body, init)
+    return _first_k(pack_bits(keep.reshape(num_entries, -1)), transmittance, ids, incomplete, k)
+
+
+def _first_k(words, transmittance, ids, incomplete, k):
+    """From the kept bits of a walk, words [M / 32, b * T^2] (uint32), and the transmittance [b, T^2] at its end:
+    the selected ids [k, b, T^2] (slot-major, as the composite reads them) and, per pixel [b, T^2], num_kept,
+    out_of_k, cut_by_list and that transmittance."""
+    shape = transmittance.shape
+    num_entries = ids.shape[1]
     # transmittance includes the contributor that triggered the stop (and any later ones), so a pixel terminated
     # exactly when its final transmittance is below the threshold.
     terminated = transmittance < T_MIN
-
-    words = pack_bits(keep.reshape(num_entries, -1))  # [M / 32, b * T^2]
     num_kept = jnp.sum(jax.lax.population_count(words), axis=0).astype(jnp.int32).reshape(shape)
     local = first_set_bits(words, k).reshape((k,) + shape)  # [k, b, T^2]
     flat_index = jnp.arange(shape[0], dtype=jnp.int32)[None, :, None] * num_entries + jnp.maximum(local, 0)
@@ -119,10 +125,18 @@ def _walk(features, ids, count, pixels, incomplete, k):
     return selected, num_kept, out_of_k, cut_by_list, transmittance
 
 
+def _walk_pallas(features, ids, count, pixels, incomplete, k):
+    """:func:`_walk` with the walk in a Pallas kernel (one program per tile; :func:`gsjax.raster.pallas.walk_bits`).
+    The transmittance differs from the XLA walk's only where a pixel terminated (a tile stops at its own end)."""
+    words, transmittance = pallas.walk_bits(tuple(jnp.moveaxis(features, -1, 0)), count, pixels)
+    return _first_k(words.reshape(words.shape[0], -1), transmittance, ids, incomplete, k)
+
+
 def select_contributors(
-    projected: Projected, tiles: TileLists, grid: TileGrid, k: int, tiles_per_batch: int
+    projected: Projected, tiles: TileLists, grid: TileGrid, k: int, tiles_per_batch: int, use_pallas: bool = False
 ) -> Selection:
-    """First ``k`` contributors of every pixel of ``grid`` (tiles processed ``tiles_per_batch`` at a time)."""
+    """First ``k`` contributors of every pixel of ``grid``: the XLA walk processes ``tiles_per_batch`` tiles at a
+    time; with ``use_pallas`` the walk is a Pallas kernel over all tiles (its state is per program, so no batching)."""
     table = jax.lax.stop_gradient(
         jnp.concatenate([projected.uv, projected.conic, projected.opacity[:, None]], axis=-1)
     )
@@ -134,7 +148,9 @@ def select_contributors(
     # Bound memory on large images: at most tiles_per_batch tiles at a time, in equal batches (least padding).
     num_batches = -(-grid.num_tiles // tiles_per_batch)
     batch = -(-grid.num_tiles // num_batches)
-    if num_batches == 1:
+    if use_pallas:
+        selected, *per_pixel = _walk_pallas(*args, k=k)
+    elif num_batches == 1:
         selected, *per_pixel = _walk(*args, k=k)
     else:
         fill = num_batches * batch - grid.num_tiles

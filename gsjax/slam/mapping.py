@@ -40,13 +40,13 @@ def gather_window_frames(
 
     def pick(stored, now):
         mask = current.reshape(current.shape + (1,) * (stored.ndim - 1))
-        return jnp.where(mask, now[None], stored[slot])
+        return jnp.where(mask, now[None], stored)
 
     return WindowFrames(
-        color=pick(keyframes.color, color),
-        depth=pick(keyframes.depth, depth),
-        w2c=pick(keyframes.w2c, w2c),
-        gamma=pick(keyframes.gamma, gamma),
+        color=pick(keyframes.color_at(slot), color),
+        depth=pick(keyframes.depth_at(slot), depth),
+        w2c=pick(keyframes.w2c[slot], w2c),
+        gamma=pick(keyframes.gamma[slot], gamma),
         keyframe=jnp.where(current, current_is_keyframe, True),
         valid=window.valid,
     )

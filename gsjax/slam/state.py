@@ -10,13 +10,39 @@ import jax.numpy as jnp
 from gsjax.gaussians import Gaussians
 
 
+DEPTH_UNIT_M = 1e-3  # stored keyframe depth unit: millimetres (the raw unit of 7-Scenes, ScanNet, most sensors)
+_DEPTH_MAX = 65535
+
+
+def encode_color(color: jax.Array) -> jax.Array:
+    """Colour in [0, 1] (float) -> uint8 (clipped, rounded; exact for images read from 8-bit files)."""
+    return jnp.round(jnp.clip(jnp.nan_to_num(color), 0.0, 1.0) * 255.0).astype(jnp.uint8)
+
+
+def decode_color(color: jax.Array) -> jax.Array:
+    return color.astype(jnp.float32) / 255.0
+
+
+def encode_depth(depth: jax.Array) -> jax.Array:
+    """Depth (m, float; 0 or non-finite = invalid) -> uint16 millimetres (0 = invalid; clipped at 65.535 m)."""
+    return jnp.round(jnp.clip(jnp.nan_to_num(depth / DEPTH_UNIT_M, posinf=0.0), 0, _DEPTH_MAX)).astype(jnp.uint16)
+
+
+def decode_depth(depth: jax.Array) -> jax.Array:
+    return depth.astype(jnp.float32) * DEPTH_UNIT_M
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class KeyframeBuffer:
     """Fixed-capacity keyframe store (method_spec A.10), filled in order.
 
+    The images are stored compactly (5 bytes per pixel instead of 16, so a long full-resolution run's keyframes
+    fit on a GPU): read them with :meth:`color_at` / :meth:`depth_at`.
+
     Attributes:
-      color: [F, H, W, 3] float32; depth: [F, H, W] float32 m (0 = invalid).
+      color: [F, H, W, 3] uint8 (:func:`encode_color`); depth: [F, H, W] uint16 mm (:func:`encode_depth`, 0 =
+        invalid).
       w2c: [F, 4, 4] estimated world-to-camera pose at insertion (fixed after tracking, so mapping re-renders it).
       frame: [F] int32 frame index; gamma: [F] float32 motion gamma used at that frame's tracking (CB-KNN).
       count: [] int32 keyframes stored (slots >= count are empty).
@@ -36,26 +62,36 @@ class KeyframeBuffer:
     @staticmethod
     def empty(capacity: int, height: int, width: int) -> "KeyframeBuffer":
         return KeyframeBuffer(
-            color=jnp.zeros((capacity, height, width, 3), jnp.float32),
-            depth=jnp.zeros((capacity, height, width), jnp.float32),
+            color=jnp.zeros((capacity, height, width, 3), jnp.uint8),
+            depth=jnp.zeros((capacity, height, width), jnp.uint16),
             w2c=jnp.broadcast_to(jnp.eye(4, dtype=jnp.float32), (capacity, 4, 4)),
             frame=jnp.full((capacity,), -1, jnp.int32),
             gamma=jnp.zeros((capacity,), jnp.float32),
             count=jnp.int32(0),
         )
 
+    def color_at(self, slot) -> jax.Array:
+        """Colour [..., H, W, 3] float32 in [0, 1] of keyframe ``slot`` (an int or an int array)."""
+        return decode_color(self.color[slot])
+
+    def depth_at(self, slot) -> jax.Array:
+        """Depth [..., H, W] float32 m (0 = invalid) of keyframe ``slot``."""
+        return decode_depth(self.depth[slot])
+
     def push(self, color, depth, w2c, frame, gamma, enabled) -> "KeyframeBuffer":
-        """Append a keyframe when ``enabled`` (a traced bool); a full buffer keeps its content (the shell sizes it
-        for the whole sequence, so this does not happen in a run)."""
+        """Append a keyframe (colour [H, W, 3] in [0, 1], depth [H, W] m) when ``enabled`` (a traced bool); a full
+        buffer keeps its content (the shell sizes it for the whole sequence, so this does not happen in a run).
+        One slot is written (an in-place update of the scan's carry), never the whole buffer."""
         enabled = enabled & (self.count < self.capacity)
         slot = jnp.minimum(self.count, self.capacity - 1)
 
         def put(buffer, value):
-            return jnp.where(enabled, buffer.at[slot].set(value), buffer)
+            value = jnp.where(enabled, jnp.asarray(value).astype(buffer.dtype), buffer[slot])
+            return jax.lax.dynamic_update_index_in_dim(buffer, value, slot, axis=0)
 
         return KeyframeBuffer(
-            color=put(self.color, color),
-            depth=put(self.depth, depth),
+            color=put(self.color, encode_color(color)),
+            depth=put(self.depth, encode_depth(depth)),
             w2c=put(self.w2c, w2c),
             frame=put(self.frame, frame),
             gamma=put(self.gamma, gamma),

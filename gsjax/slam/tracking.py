@@ -7,7 +7,8 @@ unconstrained and exact on SE(3). Two optimisers:
   sizes (rho: ``lr_trans``, phi: ``lr_rot``) on the summed L1 loss; the lowest-loss pose seen is kept. An
   iteration whose gradient is not finite takes no step and is counted.
 * ``lm``: Levenberg-Marquardt (optimistix) on the same masked residuals in least squares, with a forward-mode
-  Jacobian through the renderer (6 columns); the result is kept only if its L1 tracking loss beats the start's.
+  Jacobian through the renderer (6 columns; always on the XLA path, see ``RasterSettings.for_forward_mode``); the
+  result is kept only if its L1 tracking loss beats the start's.
 
 :func:`track_guarded` (what SLAM calls) detects divergence: a pose beyond a physical bound from the
 constant-velocity prediction, or a loss jump over the previous frame's; the frame is retried once (``adam``) and
@@ -90,6 +91,9 @@ def track(
     gamma,
 ) -> TrackResult:
     """Track one frame (colour [H, W, 3], depth [H, W]) from ``w2c_init``, minimising :func:`tracking_objective`."""
+    if config.tracking.optimizer == "lm":
+        # LM's Jacobian is forward mode, which the Pallas compositing (a custom_vjp) does not have.
+        config = dataclasses.replace(config, raster=config.raster.for_forward_mode())
     objective = tracking_objective(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
     if config.tracking.optimizer == "lm":
         return _track_lm(objective.view_at, objective.loss, w2c_init, config, objective.lambda_color, color, depth)

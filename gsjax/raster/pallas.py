@@ -1,0 +1,225 @@
+"""Pallas kernels for the rasterizer's hot path: the per-pixel front-to-back walk and the compositing.
+
+Both are drop-in replacements for pieces of the XLA path (which stays the reference):
+
+* :func:`walk_bits`: the selection walk of :mod:`gsjax.raster.select` (alpha test, SplaTAM's stop rule, early
+  termination per tile), one program per tile. It emits the same packed "kept" bits as the XLA walk; the first-K
+  extraction after it is shared, so both paths select identical slots.
+* :func:`composite_slots`: ``w_k = alpha_k prod_{j<k} (1 - alpha_j)`` and the blend of colour, depth, silhouette and
+  depth^2 over the K slots of every pixel, with a ``custom_vjp`` whose backward kernel replays the walk front to
+  back (storing T_k in the gradient buffer), then runs back to front with the suffix recurrence
+  ``R_{k-1} = alpha_k v_k + (1 - alpha_k) R_k`` (no division by ``1 - alpha``). A ``custom_vjp`` has no forward
+  mode: ``jax.jvp`` needs the XLA path (:meth:`gsjax.raster.RasterSettings.for_forward_mode`).
+
+Lowering: ``pl.pallas_call`` with BlockSpecs and the Triton compiler parameters on GPU, ``interpret=True``
+elsewhere. The same kernel body then runs on the pinned CPU jax (interpret mode, for the tests) and lowers on a
+GPU jax; Triton handles the per-lane, data-dependent loop (the walk's early exit) that Mosaic GPU's
+warpgroup model would need rewritten by hand. Every value a kernel builds is a power-of-two vector of pixels
+(Triton's rule); refs may have any shape.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+
+import jax
+import jax.numpy as jnp
+from jax.experimental import pallas as pl
+
+from gsjax.raster.project import ALPHA_MIN, gaussian_alpha
+
+T_MIN = 1e-4  # the walk stops before transmittance would fall below this (as in gsjax.raster.select)
+WORD = 32
+_MAX_BLOCK = 256  # pixels per composite program
+
+
+def on_gpu() -> bool:
+    """Whether the default JAX backend is a GPU (where the kernels are compiled rather than interpreted)."""
+    return jax.default_backend() == "gpu"
+
+
+def _call(kernel, *, grid, in_specs, out_specs, out_shape, num_warps: int):
+    params = {}
+    interpret = not on_gpu()
+    if not interpret:
+        from jax.experimental.pallas import triton as pltriton
+
+        params = dict(compiler_params=pltriton.CompilerParams(num_warps=num_warps, num_stages=1))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*[Tt]riton.*deprecated.*")
+        return pl.pallas_call(
+            kernel, grid=grid, in_specs=in_specs, out_specs=out_specs, out_shape=out_shape, interpret=interpret,
+            **params,
+        )
+
+
+# --- selection walk ----------------------------------------------------------------------------------------------
+
+
+def _walk_kernel(count_ref, u_ref, v_ref, a_ref, b_ref, c_ref, o_ref, px_ref, py_ref, bits_ref, t_ref, *,
+                 num_entries: int):
+    px = px_ref[0, :]
+    py = py_ref[0, :]
+    zeros = jnp.zeros(px.shape, jnp.int32)
+    for w in range(num_entries // WORD):
+        bits_ref[0, w, :] = zeros
+    longest = jnp.minimum(count_ref[0], num_entries)
+
+    def cond(state):
+        m, transmittance, _ = state
+        return (m < longest) & jnp.any(transmittance >= T_MIN)
+
+    def body(state):
+        m, transmittance, word = state
+        alpha = gaussian_alpha(px - u_ref[0, m], py - v_ref[0, m], a_ref[0, m], b_ref[0, m], c_ref[0, m], o_ref[0, m])
+        contributes = alpha >= ALPHA_MIN
+        transmittance = jnp.where(contributes, transmittance * (1.0 - alpha), transmittance)
+        keep = contributes & (transmittance >= T_MIN)
+        bit = m % WORD
+        word = word | jnp.left_shift(keep.astype(jnp.int32), bit)
+        bits_ref[0, m // WORD, :] = word
+        return m + 1, transmittance, jnp.where(bit == WORD - 1, zeros, word)
+
+    init = (jnp.int32(0), jnp.ones(px.shape, jnp.float32), zeros)
+    _, transmittance, _ = jax.lax.while_loop(cond, body, init)
+    t_ref[0, :] = transmittance
+
+
+def walk_bits(features, count, pixels):
+    """The selection walk of every tile, one Pallas program per tile.
+
+    Args:
+      features: tuple of six [B, M] float32 arrays (u, v, conic a, b, c, opacity) of every tile's depth-sorted
+        candidates (opacity 0 for empty entries), M a multiple of 32.
+      count: [B] int32 list lengths; pixels: [B, T^2, 2] float32 pixel coordinates (u, v).
+
+    Returns:
+      (keep words [M / 32, B, T^2] uint32 with entry m at bit m % 32 of word m // 32, transmittance [B, T^2] at
+      the end of each tile's walk; it matches the XLA walk's wherever the pixel has not terminated).
+    """
+    num_tiles, num_entries = features[0].shape
+    per_tile = pixels.shape[1]
+    words = num_entries // WORD
+    entry = pl.BlockSpec((1, num_entries), lambda t: (t, 0))
+    pixel = pl.BlockSpec((1, per_tile), lambda t: (t, 0))
+    bits, transmittance = _call(
+        functools.partial(_walk_kernel, num_entries=num_entries),
+        grid=(num_tiles,),
+        in_specs=[pl.BlockSpec((1,), lambda t: (t,))] + [entry] * 6 + [pixel] * 2,
+        out_specs=[pl.BlockSpec((1, words, per_tile), lambda t: (t, 0, 0)), pixel],
+        out_shape=[
+            jax.ShapeDtypeStruct((num_tiles, words, per_tile), jnp.int32),
+            jax.ShapeDtypeStruct((num_tiles, per_tile), jnp.float32),
+        ],
+        num_warps=max(1, min(4, per_tile // 32)),
+    )(count.astype(jnp.int32), *features, pixels[..., 0], pixels[..., 1])
+    keep = jax.lax.bitcast_convert_type(jnp.moveaxis(bits, 1, 0), jnp.uint32)
+    return keep, transmittance
+
+
+# --- compositing -------------------------------------------------------------------------------------------------
+
+
+def _block(num_pixels: int) -> int:
+    """Pixels per composite program: the largest power of two <= 256 that divides the pixel count."""
+    return math.gcd(num_pixels, _MAX_BLOCK)
+
+
+def _composite_kernel(alpha_ref, r_ref, g_ref, b_ref, z_ref, cr_ref, cg_ref, cb_ref, d_ref, s_ref, q_ref, t_ref, *,
+                      num_slots: int):
+    zeros = jnp.zeros(t_ref.shape, jnp.float32)
+
+    def body(k, carry):
+        transmittance, cr, cg, cb, d, s, q = carry
+        alpha = alpha_ref[k, :]
+        w = alpha * transmittance
+        wz = w * z_ref[k, :]
+        return (transmittance * (1.0 - alpha), cr + w * r_ref[k, :], cg + w * g_ref[k, :], cb + w * b_ref[k, :],
+                d + wz, s + w, q + wz * z_ref[k, :])
+
+    init = (jnp.ones(t_ref.shape, jnp.float32),) + (zeros,) * 6
+    transmittance, cr, cg, cb, d, s, q = jax.lax.fori_loop(0, num_slots, body, init)
+    cr_ref[...], cg_ref[...], cb_ref[...] = cr, cg, cb
+    d_ref[...], s_ref[...], q_ref[...], t_ref[...] = d, s, q, transmittance
+
+
+def _composite_bwd_kernel(alpha_ref, r_ref, g_ref, b_ref, z_ref, gcr_ref, gcg_ref, gcb_ref, gd_ref, gs_ref, gq_ref,
+                          gt_ref, da_ref, dr_ref, dg_ref, db_ref, dz_ref, *, num_slots: int):
+    # Front to back: store T_k in the alpha-gradient buffer (read back below, then overwritten).
+    def forward(k, transmittance):
+        da_ref[k, :] = transmittance
+        return transmittance * (1.0 - alpha_ref[k, :])
+
+    jax.lax.fori_loop(0, num_slots, forward, jnp.ones(gt_ref.shape, jnp.float32))
+    gcr, gcg, gcb, gd, gs, gq = (ref[...] for ref in (gcr_ref, gcg_ref, gcb_ref, gd_ref, gs_ref, gq_ref))
+
+    # Back to front. v_k = dL/dw_k; R_k = the cotangent weight of everything behind slot k per unit of T_{k+1}.
+    def backward(i, suffix):
+        k = num_slots - 1 - i
+        alpha, r, g, b, z = (ref[k, :] for ref in (alpha_ref, r_ref, g_ref, b_ref, z_ref))
+        transmittance = da_ref[k, :]
+        w = alpha * transmittance
+        v = gcr * r + gcg * g + gcb * b + gd * z + gs + gq * z * z
+        da_ref[k, :] = transmittance * (v - suffix)
+        dr_ref[k, :] = w * gcr
+        dg_ref[k, :] = w * gcg
+        db_ref[k, :] = w * gcb
+        dz_ref[k, :] = w * (gd + 2.0 * gq * z)
+        return alpha * v + (1.0 - alpha) * suffix
+
+    jax.lax.fori_loop(0, num_slots, backward, gt_ref[...])
+
+
+def _slot_specs(num_slots: int, block: int):
+    return pl.BlockSpec((num_slots, block), lambda i: (0, i)), pl.BlockSpec((block,), lambda i: (i,))
+
+
+def _composite_forward(alpha, r, g, b, z):
+    num_slots, num_pixels = alpha.shape
+    block = _block(num_pixels)
+    slot, pixel = _slot_specs(num_slots, block)
+    out = jax.ShapeDtypeStruct((num_pixels,), jnp.float32)
+    return _call(
+        functools.partial(_composite_kernel, num_slots=num_slots),
+        grid=(num_pixels // block,),
+        in_specs=[slot] * 5,
+        out_specs=[pixel] * 7,
+        out_shape=[out] * 7,
+        num_warps=max(1, min(4, block // 32)),
+    )(alpha, r, g, b, z)
+
+
+@jax.custom_vjp
+def composite_slots(alpha, r, g, b, z):
+    """Front-to-back compositing of K slots per pixel, all inputs [K, P] float32 (slot-major, depth order).
+
+    Returns ``(color_r, color_g, color_b, depth, silhouette, depth_sq, final_transmittance)``, each [P]:
+    ``sum_k w_k x_k`` with ``w_k = alpha_k prod_{j<k} (1 - alpha_j)``, and ``prod_k (1 - alpha_k)``.
+    Differentiable in reverse mode (a Pallas backward kernel); no forward mode.
+    """
+    return tuple(_composite_forward(alpha, r, g, b, z))
+
+
+def _composite_fwd(alpha, r, g, b, z):
+    return composite_slots(alpha, r, g, b, z), (alpha, r, g, b, z)
+
+
+def _composite_bwd(residuals, cotangents):
+    alpha, r, g, b, z = residuals
+    num_slots, num_pixels = alpha.shape
+    block = _block(num_pixels)
+    slot, pixel = _slot_specs(num_slots, block)
+    out = jax.ShapeDtypeStruct((num_slots, num_pixels), jnp.float32)
+    return tuple(_call(
+        functools.partial(_composite_bwd_kernel, num_slots=num_slots),
+        grid=(num_pixels // block,),
+        in_specs=[slot] * 5 + [pixel] * 7,
+        out_specs=[slot] * 5,
+        out_shape=[out] * 5,
+        num_warps=max(1, min(4, block // 32)),
+    )(alpha, r, g, b, z, *cotangents))
+
+
+composite_slots.defvjp(_composite_fwd, _composite_bwd)
