@@ -11,10 +11,11 @@ APT    := DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get -y -q
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml
+# constraints.txt pins the exact, tested versions; pyproject.toml only declares the supported ranges.
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[test]'
+	$(BIN)/pip install -q -c constraints.txt -e '.[test]'
 	touch $(STAMP)
 
 # The browser tests (tests/test_ui_browser.py) drive Debian's Chromium; installed here when missing.

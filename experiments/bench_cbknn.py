@@ -9,21 +9,17 @@ alpha 0.2 px, K0 5, beta 0.3, motion 0.5, hybrid, first_k), and their ratio.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from gsjax.data.room import dense_surface_map  # noqa: E402
-
-from gsjax.camera import se3_exp  # noqa: E402
-from gsjax.gaussians import Gaussians  # noqa: E402
-from gsjax.raster import RasterSettings, render  # noqa: E402
-from gsjax.raster.cbknn import CBKNN  # noqa: E402
+from gsjax.data.room import dense_surface_map
+from gsjax.camera import se3_exp
+from gsjax.gaussians import Gaussians
+from gsjax.raster import RasterSettings, render
+from gsjax.raster.cbknn import CBKNN
 
 
 def _median_time(fn, *args, repeats: int) -> float:

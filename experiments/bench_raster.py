@@ -13,20 +13,16 @@ from __future__ import annotations
 
 import argparse
 import resource
-import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from gsjax.data.room import dense_surface_map  # noqa: E402
-
-from gsjax.raster import RasterSettings, render  # noqa: E402
-from gsjax.raster.binning import TileGrid, bin_gaussians  # noqa: E402
-from gsjax.raster.project import project  # noqa: E402
+from gsjax.data.room import dense_surface_map
+from gsjax.raster import RasterSettings, render
+from gsjax.raster.binning import TileGrid, bin_gaussians
+from gsjax.raster.project import project
 
 
 def _timed(fn, *args, repeats: int):

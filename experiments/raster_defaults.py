@@ -12,16 +12,12 @@ truncates and the largest transmittance lost at a cut.
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from gsjax.data.room import dense_surface_map  # noqa: E402
-
-from gsjax.compilation_cache import enable_compilation_cache  # noqa: E402
-from gsjax.raster import RasterSettings, render  # noqa: E402
+from gsjax.data.room import dense_surface_map
+from gsjax.compilation_cache import enable_compilation_cache
+from gsjax.raster import RasterSettings, render
 
 VARIANTS = ("fresh", "mapped", "receding", "layered")
 CANDIDATES = (

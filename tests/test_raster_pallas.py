@@ -159,6 +159,27 @@ def test_walk_kernel_keeps_the_contributors_the_stop_rule_allows():
     np.testing.assert_array_equal(np.asarray(transmittance)[2], 1.0)  # the empty tile's pixels see nothing
 
 
+def test_the_kernels_lower_to_triton_for_a_cuda_gpu(monkeypatch):
+    # Without a GPU, lower (not compile) a render and its gradient for CUDA: every op in the kernels must have a
+    # Pallas-Triton lowering rule and every value a power-of-two size. Only the PTX compilation is left to a GPU.
+    import re
+
+    monkeypatch.setattr(kernels, "on_gpu", lambda: True)
+    gaussians, w2c, intr = scenes.SCENES["sparse_random"](0)
+    s = settings(backend="pallas", max_contributors=24, slots_per_batch=(1 << 25) + 7)  # a fresh trace
+    allow = [jax.export.DisabledSafetyCheck.custom_call("__gpu$xla.gpu.triton")]
+
+    def loss(means):
+        out = raster().render(dataclasses.replace(gaussians, means=means), w2c, intr, s)
+        return jnp.sum(out.color) + jnp.sum(out.depth)
+
+    names = set()
+    for fn in (jax.jit(loss), jax.jit(jax.grad(loss))):
+        module = jax.export.export(fn, platforms=["cuda"], disabled_checks=allow)(gaussians.means).mlir_module()
+        names |= set(re.findall(r'name = "(_[a-z_]+_kernel)"', module))
+    assert names == {"_walk_kernel", "_composite_kernel", "_composite_bwd_kernel"}
+
+
 # ----------------------------------------------------------------------------------------------- whole renders
 
 
@@ -277,6 +298,27 @@ def test_vmap_over_cbknn_parameters_on_the_pallas_path_equals_each_render():
         single = raster().render(gaussians, w2c, intr, settings(backend="xla"), cbknn=CBKNN(alpha=a), motion=MOTION)
         assert_same_render(single, jax.tree_util.tree_map(lambda x: x[i], out), f"alpha {a}")
     assert np.abs(np.asarray(out.color[0]) - np.asarray(out.color[1])).max() > 1e-3
+
+
+def test_vmap_of_the_pose_gradient_over_cbknn_parameters_on_the_pallas_path():
+    # What a sweep's tracking does: jax.grad w.r.t. the pose inside jax.vmap over CB-KNN parameters.
+    gaussians, w2c, intr = scenes.SCENES["dense_surface"](0)
+
+    def pose_grad(alpha, render_settings):
+        def loss(delta):
+            out = raster().render(gaussians, se3_exp(delta) @ w2c, intr, render_settings, cbknn=CBKNN(alpha=alpha),
+                                  motion=MOTION)
+            return jnp.sum(out.color) + jnp.sum(out.depth)
+
+        return jax.grad(loss)(jnp.zeros(6, jnp.float32))
+
+    alphas = jnp.asarray([0.05, 0.3], jnp.float32)
+    batched = jax.jit(jax.vmap(lambda a: pose_grad(a, settings(backend="pallas"))))(alphas)
+    for i in range(2):
+        single = pose_grad(alphas[i], settings(backend="xla"))
+        np.testing.assert_allclose(np.asarray(batched[i]), np.asarray(single), rtol=GRAD_TOL,
+                                   atol=GRAD_TOL * float(jnp.abs(single).max()))
+    assert np.abs(np.asarray(batched[0] - batched[1])).max() > 1e-3
 
 
 def test_forward_mode_needs_the_xla_path_and_for_forward_mode_gives_it():

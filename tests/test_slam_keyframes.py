@@ -88,3 +88,52 @@ def test_default_smoothing_moves_noisy_samples_towards_their_neighbourhood():
     np.testing.assert_array_equal(out[sparsest], points[sparsest])
     assert np.std(out[:, 2]) < 0.8 * np.std(points[:, 2])
     assert np.mean(np.linalg.norm(out - points, axis=1) > 0) > 0.5  # most points moved
+
+
+# ----------------------------------------------------------------------------------------------- compact storage
+
+
+def test_keyframe_buffer_stores_uint8_colour_and_millimetre_depth():
+    from gsjax.slam.state import KeyframeBuffer
+
+    rng = np.random.default_rng(0)
+    buffer = KeyframeBuffer.empty(3, 6, 5)
+    assert buffer.color.dtype == np.uint8 and buffer.depth.dtype == np.uint16
+    assert (buffer.color.nbytes + buffer.depth.nbytes) == 3 * 6 * 5 * 5  # 5 bytes per pixel, not 16
+    color8 = rng.integers(0, 256, (6, 5, 3))
+    depth = rng.uniform(0.3, 9.0, (6, 5))
+    depth[0, :4] = [0.0, np.nan, np.inf, 70.0]  # invalid, invalid, invalid, beyond the uint16 range
+    w2c = jnp.eye(4).at[0, 3].set(0.5)
+    buffer = buffer.push(jnp.asarray(color8 / 255.0, jnp.float32), jnp.asarray(depth, jnp.float32), w2c, 7, 0.25,
+                         jnp.bool_(True))
+    assert int(buffer.count) == 1 and int(buffer.frame[0]) == 7
+    np.testing.assert_array_equal(np.round(np.asarray(buffer.color_at(0)) * 255), color8)  # 8-bit input: exact
+    decoded = np.asarray(buffer.depth_at(0))
+    np.testing.assert_array_equal(decoded[0, :4], [0.0, 0.0, 0.0, np.float32(65.535)])
+    assert np.abs(decoded - depth).ravel()[4:].max() <= 0.5e-3 + 1e-6  # rounded to the millimetre
+    # a disabled push and a push into a full buffer leave everything as it was
+    same = buffer.push(jnp.zeros((6, 5, 3)), jnp.ones((6, 5)), jnp.eye(4), 8, 0.0, jnp.bool_(False))
+    jax.tree_util.tree_map(np.testing.assert_array_equal, same, buffer)
+    full = KeyframeBuffer.empty(1, 6, 5).push(jnp.ones((6, 5, 3)), jnp.ones((6, 5)), jnp.eye(4), 0, 0.0, True)
+    again = full.push(jnp.zeros((6, 5, 3)), jnp.zeros((6, 5)), jnp.eye(4), 1, 0.0, jnp.bool_(True))
+    jax.tree_util.tree_map(np.testing.assert_array_equal, again, full)
+
+
+def test_keyframe_push_writes_one_slot_and_never_selects_over_the_buffer():
+    from gsjax.slam.state import KeyframeBuffer
+
+    buffer = KeyframeBuffer.empty(4, 6, 5)
+    jaxpr = jax.make_jaxpr(lambda b, c, d, on: b.push(c, d, jnp.eye(4), 1, 0.0, on))(
+        buffer, jnp.zeros((6, 5, 3)), jnp.zeros((6, 5)), jnp.bool_(True))
+
+    def flatten(jaxpr):
+        for e in jaxpr.eqns:
+            yield e
+            for sub in jax.core.jaxprs_in_params(e.params):
+                yield from flatten(sub)
+
+    equations = list(flatten(jaxpr.jaxpr))
+    assert sum(e.primitive.name == "dynamic_update_slice" for e in equations) == 5  # one per field
+    for e in equations:  # no where/select over a whole image buffer (that would copy it every frame)
+        if e.primitive.name == "select_n":
+            assert all(np.prod(v.aval.shape) < 4 * 6 * 5 for v in e.outvars), e

@@ -1,4 +1,5 @@
-"""Tile-based differentiable Gaussian rasterizer (XLA path): ``render(gaussians, w2c, intrinsics, settings)``."""
+"""Tile-based differentiable Gaussian rasterizer, ``render(gaussians, w2c, intrinsics, settings)``: the XLA path
+(the reference) and Pallas kernels for GPUs (``RasterSettings.backend``)."""
 
 from gsjax.raster.render import RasterSettings, Render, RenderStats, render
 

@@ -69,7 +69,7 @@ def _walk_kernel(count_ref, u_ref, v_ref, a_ref, b_ref, c_ref, o_ref, px_ref, py
 
     def cond(state):
         m, transmittance, _ = state
-        return (m < longest) & jnp.any(transmittance >= T_MIN)
+        return (m < longest) & (jnp.max(transmittance) >= T_MIN)  # any pixel still open (Triton has no reduce_or)
 
     def body(state):
         m, transmittance, word = state
@@ -77,9 +77,9 @@ def _walk_kernel(count_ref, u_ref, v_ref, a_ref, b_ref, c_ref, o_ref, px_ref, py
         contributes = alpha >= ALPHA_MIN
         transmittance = jnp.where(contributes, transmittance * (1.0 - alpha), transmittance)
         keep = contributes & (transmittance >= T_MIN)
-        bit = m % WORD
+        bit = jax.lax.rem(m, WORD)
         word = word | jnp.left_shift(keep.astype(jnp.int32), bit)
-        bits_ref[0, m // WORD, :] = word
+        bits_ref[0, jax.lax.div(m, WORD), :] = word
         return m + 1, transmittance, jnp.where(bit == WORD - 1, zeros, word)
 
     init = (jnp.int32(0), jnp.ones(px.shape, jnp.float32), zeros)

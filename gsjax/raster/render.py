@@ -214,8 +214,9 @@ def render(
     where alpha >= 1/255. Front to back in camera depth, a pixel stops before a contributor that would leave its
     transmittance below 1e-4 (that contributor is not added); background is 0; Gaussians with z <= near are culled.
 
-    Pure and traceable: ``jax.jit``, ``jax.grad`` (w.r.t. every Gaussian field and the pose), ``jax.jvp`` and
-    ``jax.vmap`` (over poses or over stacked maps) all work; only shapes are static. Arguments are validated
+    Pure and traceable: ``jax.jit``, ``jax.grad`` (w.r.t. every Gaussian field and the pose) and ``jax.vmap``
+    (over poses, stacked maps or CB-KNN parameters) all work on both backends, ``jax.jvp`` on the XLA path
+    (``settings.for_forward_mode()``); only shapes are static. Arguments are validated
     here (ValueError naming the argument); value checks are skipped under an outer trace (see
     :func:`check_render_inputs`).
     """
@@ -309,7 +310,7 @@ def _blend(alpha, r, g, b, depth, use_pallas: bool) -> tuple[Composite, jax.Arra
 
 def _composite_pixels(table, ids, pixels, in_image, k_pixel, cbknn, use_pallas: bool):
     """Gather, alpha and blend of pixels [P] with slots ``ids`` [K, P]; CB-KNN (method_spec D.5, D.7) when
-    ``cbknn``. Returns (Composite, canonical final transmittance [P], CB-KNN shift sum (px), corrected slots)."""
+    ``cbknn``. Returns (Composite, canonical final transmittance [P], CB-KNN shift sum (px), number of corrected slots)."""
     slots = gather(table, ids)
     alpha = slot_alpha(slots, pixels)
     if cbknn is None:
@@ -332,6 +333,7 @@ def _composite_batched(table, ids, pixels, in_image, k_pixel, cbknn, settings: R
     if num_batches == 1:
         return _composite_pixels(table, ids, pixels, in_image, k_pixel, cbknn, use_pallas)
     tiles = -(-grid.num_tiles // num_batches)
+    num_batches = -(-grid.num_tiles // tiles)  # no batch of padding only
     width = tiles * grid.pixels_per_tile
     fill = num_batches * width - ids.shape[1]
     k_pixel = jnp.zeros(ids.shape[1], jnp.int32) if k_pixel is None else k_pixel

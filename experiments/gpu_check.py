@@ -1,0 +1,68 @@
+"""Collect what ``experiments/gpu_check.sh`` measured into one JSON, ``OUT/gpu_check.json``, and print it.
+
+    python experiments/gpu_check.py OUT
+
+Reads ``OUT/steps.jsonl`` (status and seconds of each step), ``OUT/tests.jsonl`` (Pallas vs XLA differences from
+tests/test_gpu.py), ``OUT/bench.json`` (gsjax bench) and ``OUT/run/metrics.json`` (the 40-frame run), and sets the
+issue's targets beside the figures: a tracking iteration at 1200x680 <= 3 ms, >= 5 frames/s at full resolution,
+Pallas >= 3x faster than XLA.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+
+def _lines(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
+
+
+def _json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def collect(out: Path) -> dict:
+    result = {"gpu": (out / "gpu.txt").read_text().strip() if (out / "gpu.txt").is_file() else None,
+              "steps": _lines(out / "steps.jsonl"), "tests": _lines(out / "tests.jsonl")}
+    bench = _json(out / "bench.json")
+    result["bench"] = bench
+    targets = {}
+    if bench:
+        rows = {(r["backend"], r["size"]): r for r in bench["rows"]}
+        for size in sorted({r["size"] for r in bench["rows"]}):
+            xla, pallas = rows.get(("xla", size)), rows.get(("pallas", size))
+            if xla and pallas:
+                targets[f"pallas_speedup_fwd_bwd_{size}"] = xla["fwd_bwd_ms"] / pallas["fwd_bwd_ms"]
+                targets[f"pallas_speedup_track_iter_{size}"] = xla["track_iter_ms"] / pallas["track_iter_ms"]
+        if ("pallas", "1200x680") in rows:
+            targets["track_iter_ms_1200x680"] = rows[("pallas", "1200x680")]["track_iter_ms"]
+    metrics = _json(out / "run" / "metrics.json")
+    if metrics:
+        trajectory = metrics.get("trajectory") or {}
+        result["run"] = dict(
+            {key: metrics.get(key) for key in ("frames", "width", "height", "frames_per_s", "seconds_per_frame",
+                                               "stage_timings_s", "num_gaussians", "frames_with_truncated_render",
+                                               "warnings")},
+            ate_rmse_c2w_cm=trajectory.get("ate_rmse_c2w_cm"), render=metrics.get("render"))
+        targets["frames_per_s_full_resolution"] = metrics.get("frames_per_s")
+    result["targets"] = dict(targets, goals="track_iter_ms_1200x680 <= 3; frames/s >= 5 at full resolution; "
+                                          "pallas speedup >= 3")
+    return result
+
+
+def main(argv: list[str]) -> int:
+    out = Path(argv[1] if len(argv) > 1 else "outputs/gpu_check")
+    result = collect(out)
+    (out / "gpu_check.json").write_text(json.dumps(result, indent=2))
+    print(json.dumps({k: result[k] for k in ("gpu", "steps", "targets")}, indent=2))
+    print(f"wrote {out / 'gpu_check.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
