@@ -2,9 +2,10 @@
 
 Both are drop-in replacements for pieces of the XLA path (which stays the reference):
 
-* :func:`walk_bits`: the selection walk of :mod:`gsjax.raster.select` (alpha test, SplaTAM's stop rule, early
-  termination per tile), one program per tile. It emits the same packed "kept" bits as the XLA walk; the first-K
-  extraction after it is shared, so both paths select identical slots.
+* :func:`walk_select`: the selection walk of :mod:`gsjax.raster.select` (alpha test, SplaTAM's stop rule, early
+  termination per tile) and the extraction of each pixel's first K kept entries, one program per tile. It keeps
+  the same packed "kept" bits as the XLA walk and pops them with the same lowest-set-bit arithmetic, so both
+  paths select identical slots.
 * :func:`composite_slots`: ``w_k = alpha_k prod_{j<k} (1 - alpha_j)`` and the blend of colour, depth, silhouette and
   depth^2 over the K slots of every pixel, with a ``custom_vjp`` whose backward kernel replays the walk front to
   back (storing T_k in the gradient buffer), then runs back to front with the suffix recurrence
@@ -58,12 +59,13 @@ def _call(kernel, *, grid, in_specs, out_specs, out_shape, num_warps: int):
 # --- selection walk ----------------------------------------------------------------------------------------------
 
 
-def _walk_kernel(count_ref, u_ref, v_ref, a_ref, b_ref, c_ref, o_ref, px_ref, py_ref, bits_ref, t_ref, *,
-                 num_entries: int):
+def _walk_kernel(count_ref, u_ref, v_ref, a_ref, b_ref, c_ref, o_ref, px_ref, py_ref, bits_ref, local_ref, kept_ref,
+                 t_ref, *, num_entries: int, k: int):
     px = px_ref[0, :]
     py = py_ref[0, :]
     zeros = jnp.zeros(px.shape, jnp.int32)
-    for w in range(num_entries // WORD):
+    num_words = num_entries // WORD
+    for w in range(num_words):
         bits_ref[0, w, :] = zeros
     longest = jnp.minimum(count_ref[0], num_entries)
 
@@ -86,37 +88,60 @@ def _walk_kernel(count_ref, u_ref, v_ref, a_ref, b_ref, c_ref, o_ref, px_ref, py
     _, transmittance, _ = jax.lax.while_loop(cond, body, init)
     t_ref[0, :] = transmittance
 
+    # First K kept entries of every pixel: pop the lowest set bit of its first non-zero word, K times, on the
+    # [words, pixels] tile of bits (no gather, no scatter: each pixel's state is one column).
+    words = bits_ref[0, :, :]
+    kept_ref[0, :] = jnp.sum(jax.lax.population_count(words), axis=0)
+    rows = jax.lax.broadcasted_iota(jnp.int32, words.shape, 0)
 
-def walk_bits(features, count, pixels):
-    """The selection walk of every tile, one Pallas program per tile.
+    def pop(slot, words):
+        first = jnp.min(jnp.where(words != 0, rows, num_words), axis=0)  # num_words: none left
+        at_first = rows == first[None, :]
+        word = jnp.sum(jnp.where(at_first, words, 0), axis=0)
+        bit = (WORD - 1) - jax.lax.clz(word & -word)  # -1 for an empty word
+        local_ref[0, slot, :] = jnp.where(first < num_words, first * WORD + bit, -1)
+        return jnp.where(at_first, words & (words - 1), words)
+
+    jax.lax.fori_loop(0, k, pop, words)
+
+
+def walk_select(features, count, pixels, k: int):
+    """The selection walk of every tile and its first ``k`` contributors, one Pallas program per tile.
 
     Args:
       features: tuple of six [B, M] float32 arrays (u, v, conic a, b, c, opacity) of every tile's depth-sorted
-        candidates (opacity 0 for empty entries), M a multiple of 32.
+        candidates (opacity 0 for empty entries), M / 32 a power of two.
       count: [B] int32 list lengths; pixels: [B, T^2, 2] float32 pixel coordinates (u, v).
+      k: contributor slots per pixel.
 
     Returns:
-      (keep words [M / 32, B, T^2] uint32 with entry m at bit m % 32 of word m // 32, transmittance [B, T^2] at
-      the end of each tile's walk; it matches the XLA walk's wherever the pixel has not terminated).
+      (local [B, k, T^2] int32: list positions of each pixel's first k kept entries in depth order, -1 past the
+      last; num_kept [B, T^2] int32: kept entries in the whole walk; transmittance [B, T^2] at the end of each
+      tile's walk, which matches the XLA walk's wherever the pixel has not terminated).
     """
     num_tiles, num_entries = features[0].shape
     per_tile = pixels.shape[1]
     words = num_entries // WORD
+    if on_gpu() and not all(n & (n - 1) == 0 for n in (per_tile, words)):
+        raise ValueError(f"the Pallas walk needs a power-of-two tile area and list words, got {per_tile} px, "
+                         f"{words} words (RasterSettings.tile_size / tile_capacity)")
     entry = pl.BlockSpec((1, num_entries), lambda t: (t, 0))
     pixel = pl.BlockSpec((1, per_tile), lambda t: (t, 0))
-    bits, transmittance = _call(
-        functools.partial(_walk_kernel, num_entries=num_entries),
+    _, local, num_kept, transmittance = _call(
+        functools.partial(_walk_kernel, num_entries=num_entries, k=k),
         grid=(num_tiles,),
         in_specs=[pl.BlockSpec((1,), lambda t: (t,))] + [entry] * 6 + [pixel] * 2,
-        out_specs=[pl.BlockSpec((1, words, per_tile), lambda t: (t, 0, 0)), pixel],
+        out_specs=[pl.BlockSpec((1, words, per_tile), lambda t: (t, 0, 0)),
+                   pl.BlockSpec((1, k, per_tile), lambda t: (t, 0, 0)), pixel, pixel],
         out_shape=[
-            jax.ShapeDtypeStruct((num_tiles, words, per_tile), jnp.int32),
+            jax.ShapeDtypeStruct((num_tiles, words, per_tile), jnp.int32),  # the kept bits (scratch)
+            jax.ShapeDtypeStruct((num_tiles, k, per_tile), jnp.int32),
+            jax.ShapeDtypeStruct((num_tiles, per_tile), jnp.int32),
             jax.ShapeDtypeStruct((num_tiles, per_tile), jnp.float32),
         ],
         num_warps=max(1, min(4, per_tile // 32)),
     )(count.astype(jnp.int32), *features, pixels[..., 0], pixels[..., 1])
-    keep = jax.lax.bitcast_convert_type(jnp.moveaxis(bits, 1, 0), jnp.uint32)
-    return keep, transmittance
+    return local, num_kept, transmittance
 
 
 # --- compositing -------------------------------------------------------------------------------------------------

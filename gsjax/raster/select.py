@@ -109,15 +109,22 @@ def _walk(features, ids, count, pixels, incomplete, k):
 
 def _first_k(words, transmittance, ids, incomplete, k):
     """From the kept bits of a walk, words [M / 32, b * T^2] (uint32), and the transmittance [b, T^2] at its end:
-    the selected ids [k, b, T^2] (slot-major, as the composite reads them) and, per pixel [b, T^2], num_kept,
-    out_of_k, cut_by_list and that transmittance."""
+    :func:`_selected`'s tuple."""
+    shape = transmittance.shape
+    num_kept = jnp.sum(jax.lax.population_count(words), axis=0).astype(jnp.int32).reshape(shape)
+    local = first_set_bits(words, k).reshape((k,) + shape)  # [k, b, T^2]
+    return _selected(local, num_kept, transmittance, ids, incomplete, k)
+
+
+def _selected(local, num_kept, transmittance, ids, incomplete, k):
+    """From each pixel's first-k list positions ``local`` [k, b, T^2] (-1 past the last), its kept count and the
+    transmittance [b, T^2] at the end of its walk: the selected ids [k, b, T^2] (slot-major, as the composite
+    reads them) and, per pixel [b, T^2], num_kept, out_of_k, cut_by_list and that transmittance."""
     shape = transmittance.shape
     num_entries = ids.shape[1]
     # transmittance includes the contributor that triggered the stop (and any later ones), so a pixel terminated
     # exactly when its final transmittance is below the threshold.
     terminated = transmittance < T_MIN
-    num_kept = jnp.sum(jax.lax.population_count(words), axis=0).astype(jnp.int32).reshape(shape)
-    local = first_set_bits(words, k).reshape((k,) + shape)  # [k, b, T^2]
     flat_index = jnp.arange(shape[0], dtype=jnp.int32)[None, :, None] * num_entries + jnp.maximum(local, 0)
     selected = jnp.where(local >= 0, ids.reshape(-1)[flat_index], -1)  # [k, b, T^2] slot-major
     out_of_k = num_kept > k
@@ -126,10 +133,15 @@ def _first_k(words, transmittance, ids, incomplete, k):
 
 
 def _walk_pallas(features, ids, count, pixels, incomplete, k):
-    """:func:`_walk` with the walk in a Pallas kernel (one program per tile; :func:`gsjax.raster.pallas.walk_bits`).
-    The transmittance differs from the XLA walk's only where a pixel terminated (a tile stops at its own end)."""
-    words, transmittance = pallas.walk_bits(tuple(jnp.moveaxis(features, -1, 0)), count, pixels)
-    return _first_k(words.reshape(words.shape[0], -1), transmittance, ids, incomplete, k)
+    """:func:`_walk` as one Pallas kernel (:func:`gsjax.raster.pallas.walk_select`, one program per tile, the
+    first-k extraction included). The transmittance differs from the XLA walk's only where a pixel terminated (a
+    tile stops at its own end). The lists are padded to a power-of-two number of 32-bit words (Triton's shapes)."""
+    words = ids.shape[1] // _WORD
+    pad = _WORD * (1 << (words - 1).bit_length()) - ids.shape[1]
+    features = jnp.pad(features, ((0, 0), (0, pad), (0, 0)))
+    ids = jnp.pad(ids, ((0, 0), (0, pad)), constant_values=-1)
+    local, num_kept, transmittance = pallas.walk_select(tuple(jnp.moveaxis(features, -1, 0)), count, pixels, k)
+    return _selected(jnp.moveaxis(local, 1, 0), num_kept, transmittance, ids, incomplete, k)
 
 
 def select_contributors(
