@@ -9,27 +9,16 @@ alpha 0.2 px, K0 5, beta 0.3, motion 0.5, hybrid, first_k), and their ratio.
 from __future__ import annotations
 
 import argparse
-import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
+from gsjax.bench import median_seconds
 from gsjax.data.room import dense_surface_map
 from gsjax.camera import se3_exp
 from gsjax.gaussians import Gaussians
 from gsjax.raster import RasterSettings, render
 from gsjax.raster.cbknn import CBKNN
-
-
-def _median_time(fn, *args, repeats: int) -> float:
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def bench(width: int, height: int, variant: str, cbknn: CBKNN | None, repeats: int) -> tuple[float, float]:
@@ -46,7 +35,7 @@ def bench(width: int, height: int, variant: str, cbknn: CBKNN | None, repeats: i
     params = (gaussians.means, gaussians.rgb, gaussians.logit_opacities, gaussians.log_scales, jnp.zeros(6))
     fwd = jax.jit(loss)
     fwd_bwd = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2, 3, 4)))
-    return _median_time(fwd, *params, repeats=repeats), _median_time(fwd_bwd, *params, repeats=repeats)
+    return median_seconds(fwd, *params, repeats=repeats), median_seconds(fwd_bwd, *params, repeats=repeats)
 
 
 def main(argv=None) -> None:

@@ -68,18 +68,23 @@ def bench_map(width: int, height: int, gaussians: int | None = None, seed: int =
     return g, w2c, make_intrinsics(fx, fx, (width - 1) / 2, (height - 1) / 2, height, width)
 
 
+def median_seconds(fn: Callable, *args, repeats: int) -> float:
+    """Median wall time (s) of ``fn(*args)`` over ``repeats`` runs after one warm-up run, results awaited."""
+    jax.block_until_ready(fn(*args))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
 def _timed(fn: Callable, *args, repeats: int) -> tuple[float, float, object]:
     """(compile s, median run s after one warm-up, the lowered-and-compiled function) of ``jax.jit(fn)``."""
     t0 = time.perf_counter()
     compiled = jax.jit(fn).lower(*args).compile()
     compile_s = time.perf_counter() - t0
-    jax.block_until_ready(compiled(*args))
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        times.append(time.perf_counter() - t0)
-    return compile_s, statistics.median(times), compiled
+    return compile_s, median_seconds(compiled, *args, repeats=repeats), compiled
 
 
 def _peak_mib(compiled) -> float | None:
