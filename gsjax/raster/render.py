@@ -43,14 +43,14 @@ class RasterSettings:
         in the stats.
       tiles_per_batch: at most this many tiles are processed together in the XLA selection pass (bounds its
         memory; the tiles are split into equal batches).
+      near: near-plane distance (m); Gaussians with camera z <= near are culled.
       slots_per_batch: at most this many per-pixel slots (K x pixels) are composited together; larger images are
         composited in equal batches of tiles, each recomputed in the backward pass, so the slot arrays' memory is
         bounded whatever the image size (at the cost of a second forward of the compositing).
       backend: ``"xla"`` (the reference), ``"pallas"`` (Pallas kernels for the selection walk and the compositing;
         compiled on a GPU, interpreted elsewhere, which is slow and meant for tests) or ``"auto"`` (pallas on a
         GPU, xla elsewhere). Same outputs either way; the pallas path has no forward mode (see
-        :meth:`for_forward_mode`).
-      near: near-plane distance (m); Gaussians with camera z <= near are culled.
+        :meth:`for_forward_mode`), and compiled for a GPU it needs a power-of-two tile area (8x8, 16x16).
 
     The defaults render dense SplaTAM-like maps without truncation (measured in ``experiments/raster_defaults.py``);
     whatever the settings, truncation is reported in ``Render.stats``.
@@ -62,9 +62,9 @@ class RasterSettings:
     intersections_per_gaussian: float = dataclasses.field(default=4.0, metadata=dict(static=True))
     intersections_per_pixel: float = dataclasses.field(default=16.0, metadata=dict(static=True))
     tiles_per_batch: int = dataclasses.field(default=512, metadata=dict(static=True))
+    near: float = 0.2
     slots_per_batch: int = dataclasses.field(default=1 << 25, metadata=dict(static=True))
     backend: str = dataclasses.field(default="auto", metadata=dict(static=True))
-    near: float = 0.2
 
     def __post_init__(self):
         if self.backend not in BACKENDS:
