@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import jax.extend.core
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -129,7 +130,7 @@ def test_keyframe_push_writes_one_slot_and_never_selects_over_the_buffer():
     def flatten(jaxpr):
         for e in jaxpr.eqns:
             yield e
-            for sub in jax.core.jaxprs_in_params(e.params):
+            for sub in jax.extend.core.jaxprs_in_params(e.params):
                 yield from flatten(sub)
 
     equations = list(flatten(jaxpr.jaxpr))
