@@ -188,8 +188,9 @@ def test_truncation_is_reported_the_same_way(name, overrides):
     assert_same_render(xla, pallas, f"{name} {overrides}")
 
 
-@pytest.mark.parametrize("case", sorted(CBKNN_CASES))
-@pytest.mark.parametrize("name", ["dense_surface", "heavy_overlap"])
+@pytest.mark.parametrize(
+    "name, case", [("dense_surface", c) for c in sorted(CBKNN_CASES)] + [("heavy_overlap", "adaptive")]
+)
 def test_cbknn_render_and_statistics_are_the_same_on_both_backends(name, case):
     xla, pallas = both(name, case)
     canonical, _ = both(name)
