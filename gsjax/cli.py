@@ -496,7 +496,8 @@ def _cmd_bench(args) -> int:
     if args.out.is_dir():
         raise UserError(f"--out {args.out} is a directory; give the JSON file to write")
     backends = args.backend or (["xla", "pallas"] if pallas.on_gpu() else ["xla"])
-    result = run_bench(backends, args.sizes, args.gaussians, args.repeats, args.k, log=lambda line: print(line, flush=True))
+    result = run_bench(backends, args.sizes, args.gaussians, args.repeats, args.k,
+                       log=lambda line: print(line, flush=True))
     print(f"wrote {atomic_write_json(args.out, result)}")
     return 0
 

@@ -263,7 +263,8 @@ def test_compositing_in_batches_of_tiles_gives_the_same_render_and_gradients(bac
                               motion=MOTION)
     assert_same_render(whole, batched, f"{backend} {case} batched")
     assert_same_gradients(
-        gradients(name, settings(backend=backend), cb), gradients(name, settings(backend=backend, slots_per_batch=small), cb),
+        gradients(name, settings(backend=backend), cb),
+        gradients(name, settings(backend=backend, slots_per_batch=small), cb),
         f"{backend} {case} batched",
     )
 

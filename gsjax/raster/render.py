@@ -310,7 +310,8 @@ def _blend(alpha, r, g, b, depth, use_pallas: bool) -> tuple[Composite, jax.Arra
 
 def _composite_pixels(table, ids, pixels, in_image, k_pixel, cbknn, use_pallas: bool):
     """Gather, alpha and blend of pixels [P] with slots ``ids`` [K, P]; CB-KNN (method_spec D.5, D.7) when
-    ``cbknn``. Returns (Composite, canonical final transmittance [P], CB-KNN shift sum (px), number of corrected slots)."""
+    ``cbknn``. Returns (Composite, canonical final transmittance [P], CB-KNN shift sum (px), number of corrected
+    slots)."""
     slots = gather(table, ids)
     alpha = slot_alpha(slots, pixels)
     if cbknn is None:
