@@ -13,7 +13,7 @@ import argparse
 import jax
 import jax.numpy as jnp
 
-from gsjax.bench import median_seconds
+from gsjax.bench import median_seconds, weighted_outputs
 from gsjax.data.room import dense_surface_map
 from gsjax.camera import se3_exp
 from gsjax.gaussians import Gaussians
@@ -29,8 +29,7 @@ def bench(width: int, height: int, variant: str, cbknn: CBKNN | None, repeats: i
     def loss(means, rgb, logit_opacities, log_scales, delta):
         g = Gaussians(means, log_scales, logit_opacities, rgb, gaussians.active)
         out = render(g, se3_exp(delta) @ w2c, intrinsics, settings, cbknn=cbknn, motion=0.5)
-        return (jnp.sum(weights[..., :3] * out.color) + jnp.sum(weights[..., 3] * out.depth)
-                + jnp.sum(weights[..., 4] * out.silhouette) + jnp.sum(weights[..., 5] * out.depth_sq))
+        return weighted_outputs(out, weights)
 
     params = (gaussians.means, gaussians.rgb, gaussians.logit_opacities, gaussians.log_scales, jnp.zeros(6))
     fwd = jax.jit(loss)

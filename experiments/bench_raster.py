@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsjax.bench import weighted_outputs
 from gsjax.data.room import dense_surface_map
 from gsjax.raster import RasterSettings, render
 from gsjax.raster.binning import TileGrid, bin_gaussians
@@ -46,12 +47,7 @@ def bench(width: int, height: int, variant: str, settings: RasterSettings, repea
         from gsjax.camera import se3_exp
 
         out = render(g, se3_exp(delta) @ w2c, intrinsics, settings)
-        return (
-            jnp.sum(weights[..., :3] * out.color)
-            + jnp.sum(weights[..., 3] * out.depth)
-            + jnp.sum(weights[..., 4] * out.silhouette)
-            + jnp.sum(weights[..., 5] * out.depth_sq)
-        )
+        return weighted_outputs(out, weights)
 
     params = (gaussians.means, gaussians.rgb, gaussians.logit_opacities, gaussians.log_scales, jnp.zeros(6))
     fwd = jax.jit(lambda g, w: render(g, w, intrinsics, settings))

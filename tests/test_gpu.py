@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsjax.bench import bench_map
+from gsjax.bench import bench_map, weighted_outputs
 from gsjax.camera import se3_exp
 from gsjax.gaussians import Gaussians
 from gsjax.raster import RasterSettings, render
@@ -72,8 +72,7 @@ def test_pallas_gradients_equal_xla_on_a_640x480_map(scene, cbknn):
     def loss(fields, delta, backend):
         out = render(Gaussians(*fields, g.active), se3_exp(delta) @ w2c, intrinsics, _settings(backend),
                      cbknn=cbknn, motion=0.5)
-        return (jnp.sum(weights[..., :3] * out.color) + jnp.sum(weights[..., 3] * out.depth)
-                + jnp.sum(weights[..., 4] * out.silhouette) + jnp.sum(weights[..., 5] * out.depth_sq))
+        return weighted_outputs(out, weights)
 
     fields = (g.means, g.log_scales, g.logit_opacities, g.rgb)
     grads = {b: jax.jit(jax.grad(lambda f, d, b=b: loss(f, d, b), argnums=(0, 1)))(fields, jnp.zeros(6))

@@ -108,10 +108,16 @@ def _concat(maps: list[Gaussians]) -> Gaussians:
     return Gaussians(*(jnp.concatenate([getattr(m, f) for m in maps]) for f in Gaussians.__dataclass_fields__))
 
 
+def room_intrinsics(height: int, width: int):
+    """The pinhole camera the room is mapped and seen with: about 64 degrees across, centred."""
+    fx = 0.8 * width
+    return make_intrinsics(fx, fx, (width - 1) / 2, (height - 1) / 2, height, width)
+
+
 def dense_surface_map(height: int, width: int, variant: str = "mapped", seed: int = 0):
     """(gaussians, w2c, intrinsics) of a SplaTAM-density map of the analytic room, seen from the origin."""
-    fx = 0.8 * width  # about 64 degrees horizontal field of view
-    intrinsics = make_intrinsics(fx, fx, (width - 1) / 2, (height - 1) / 2, height, width)
+    intrinsics = room_intrinsics(height, width)
+    fx = float(intrinsics.fx)
     rng = np.random.default_rng(seed)
     if variant == "fresh":
         maps = [_layer(height, width, fx, intrinsics, 0.0, 0.5, rng)]

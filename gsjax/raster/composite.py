@@ -68,12 +68,6 @@ def gather(table: Slots, ids: jax.Array) -> Slots:
     return Slots(*(column[index] for column in table[:-1]), valid=ids >= 0)
 
 
-def gather_slots(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near, ids: jax.Array) -> Slots:
-    """Project the Gaussians (with gradients) and gather them at slot indices ``ids`` [K, P] (-1 = empty)
-    -> :class:`Slots` [K, P]."""
-    return gather(splat_table(gaussians, w2c, intrinsics, near), ids)
-
-
 def slot_alpha(slots: Slots, pixels: jax.Array, u: jax.Array | None = None, v: jax.Array | None = None) -> jax.Array:
     """alpha [K, P] of every slot at its pixel, ``pixels`` [P, 2] (0 for empty slots).
 
