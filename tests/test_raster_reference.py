@@ -141,3 +141,19 @@ def test_too_small_tile_capacity_is_reported(name, tile_size, capacity):
     assert must > 0
     assert must <= stats["tiles_overflowed"] <= counts.size
     assert stats["truncated"]
+
+
+@pytest.mark.parametrize("k", [1, 7, 40])
+def test_first_set_bits_finds_each_pixels_first_k_set_bits(k):
+    # Against numpy's nonzero on random 512-bit strings of every density, including empty and full ones.
+    from gsjax.raster.select import first_set_bits
+
+    rng = np.random.default_rng(k)
+    density = np.concatenate([[0.0, 1.0], rng.uniform(0.0, 0.2, 60), rng.uniform(0.0, 1.0, 38)])
+    bits = rng.random((512, density.size)) < density[None, :]
+    words = (bits.reshape(16, 32, -1).astype(np.uint64) << np.arange(32, dtype=np.uint64)[None, :, None]).sum(1)
+    positions = np.asarray(first_set_bits(np.asarray(words, np.uint32), k))
+    for p in range(density.size):
+        expected = np.flatnonzero(bits[:, p])[:k]
+        np.testing.assert_array_equal(positions[: expected.size, p], expected, err_msg=f"pixel {p}")
+        assert np.all(positions[expected.size:, p] == -1), f"pixel {p}"

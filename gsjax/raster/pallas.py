@@ -4,8 +4,8 @@ Both are drop-in replacements for pieces of the XLA path (which stays the refere
 
 * :func:`walk_select`: the selection walk of :mod:`gsjax.raster.select` (alpha test, SplaTAM's stop rule, early
   termination per tile) and the extraction of each pixel's first K kept entries, one program per tile. It keeps
-  the same packed "kept" bits as the XLA walk and pops them with the same lowest-set-bit arithmetic, so both
-  paths select identical slots.
+  the same packed "kept" bits as the XLA walk and pops them with lowest-set-bit arithmetic (the first K set bits,
+  as the XLA path's popcount search finds them), so both paths select identical slots.
 * :func:`composite_slots`: ``w_k = alpha_k prod_{j<k} (1 - alpha_j)`` and the blend of colour, depth, silhouette and
   depth^2 over the K slots of every pixel, with a ``custom_vjp`` whose backward kernel replays the walk front to
   back (storing T_k in the gradient buffer), then runs back to front with the suffix recurrence
