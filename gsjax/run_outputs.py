@@ -106,7 +106,7 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: RunOptions, s
 
 
 # The per-frame outputs metrics.json keeps (the flags are listed as frame numbers: skipped_frames, ...).
-PER_FRAME = ("tracking_loss", "mapping_loss", "num_gaussians", "added", "dropped", "gamma")
+PER_FRAME = ("tracking_loss", "mapping_loss", "num_gaussians", "added", "dropped", "gamma", "tracking_iters")
 
 
 def _json_number(value):

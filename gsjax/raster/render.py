@@ -19,7 +19,7 @@ from gsjax.gaussians import Gaussians, check_gaussians
 from gsjax.raster import cbknn as cb
 from gsjax.raster import pallas
 from gsjax.raster.binning import TileGrid, bin_gaussians
-from gsjax.raster.composite import Composite, blend_weights, composite, gather, slot_alpha, splat_table
+from gsjax.raster.composite import Composite, blend_weights, composite, gather, slot_alpha, splat_slots, splat_table
 from gsjax.raster.project import project
 from gsjax.raster.select import select_contributors
 
@@ -51,6 +51,10 @@ class RasterSettings:
         compiled on a GPU, interpreted elsewhere, which is slow and meant for tests) or ``"auto"`` (pallas on a
         GPU, xla elsewhere). Same outputs either way; the pallas path has no forward mode (see
         :meth:`for_forward_mode`), and compiled for a GPU it needs a power-of-two tile area (8x8, 16x16).
+      pose_only: the map is held fixed: no gradient reaches the Gaussians, only ``w2c`` (tracking). The slots are
+        then projected from the Gaussians' raw parameters per slot (:func:`gsjax.raster.composite.splat_slots`)
+        instead of gathered from a per-Gaussian projection, so the backward pass needs no scatter-add into the N
+        Gaussians. The same render either way.
 
     The defaults render dense SplaTAM-like maps without truncation (measured in ``experiments/raster_defaults.py``);
     whatever the settings, truncation is reported in ``Render.stats``.
@@ -65,6 +69,7 @@ class RasterSettings:
     near: float = 0.2
     slots_per_batch: int = dataclasses.field(default=1 << 25, metadata=dict(static=True))
     backend: str = dataclasses.field(default="auto", metadata=dict(static=True))
+    pose_only: bool = dataclasses.field(default=False, metadata=dict(static=True))
 
     def __post_init__(self):
         if self.backend not in BACKENDS:
@@ -261,9 +266,13 @@ def _render(
             rho = cb.density_map(projected, grid.height, grid.width, cbknn.cell)
             k_map = cb.kernel_size_map(rho, cbknn, motion)
             k_pixel = k_map.reshape(-1)[cb.pixel_cells(pixels, grid.height, grid.width, cbknn.cell)]
-        table = splat_table(gaussians, w2c, intrinsics, settings.near)
+        if settings.pose_only:
+            source = lambda ids: splat_slots(gaussians, ids, w2c, intrinsics, settings.near)  # noqa: E731
+        else:
+            table = splat_table(gaussians, w2c, intrinsics, settings.near)
+            source = lambda ids: gather(table, ids)  # noqa: E731
         out, final_transmittance, shift_sum, num_corrected = _composite_batched(
-            table, selection.ids, pixels, in_image, k_pixel, cbknn, settings, grid
+            source, selection.ids, pixels, in_image, k_pixel, cbknn, settings, grid
         )
         cbknn_stats = None
         if cbknn is not None:
@@ -308,11 +317,11 @@ def _blend(alpha, r, g, b, depth, use_pallas: bool) -> tuple[Composite, jax.Arra
     return composite(weights, r, g, b, depth), final
 
 
-def _composite_pixels(table, ids, pixels, in_image, k_pixel, cbknn, use_pallas: bool):
-    """Gather, alpha and blend of pixels [P] with slots ``ids`` [K, P]; CB-KNN (method_spec D.5, D.7) when
-    ``cbknn``. Returns (Composite, canonical final transmittance [P], CB-KNN shift sum (px), number of corrected
-    slots)."""
-    slots = gather(table, ids)
+def _composite_pixels(source, ids, pixels, in_image, k_pixel, cbknn, use_pallas: bool):
+    """Slots, alpha and blend of pixels [P] with slots ``ids`` [K, P] (``source(ids)`` gives the :class:`Slots`);
+    CB-KNN (method_spec D.5, D.7) when ``cbknn``. Returns (Composite, canonical final transmittance [P], CB-KNN
+    shift sum (px), number of corrected slots)."""
+    slots = source(ids)
     alpha = slot_alpha(slots, pixels)
     if cbknn is None:
         out, final = _blend(alpha, slots.r, slots.g, slots.b, slots.depth, use_pallas)
@@ -325,14 +334,14 @@ def _composite_pixels(table, ids, pixels, in_image, k_pixel, cbknn, use_pallas: 
     return out, final, shift_sum, jnp.sum(corrected.corrected & in_image[None, :], dtype=jnp.int32)
 
 
-def _composite_batched(table, ids, pixels, in_image, k_pixel, cbknn, settings: RasterSettings, grid: TileGrid):
+def _composite_batched(source, ids, pixels, in_image, k_pixel, cbknn, settings: RasterSettings, grid: TileGrid):
     """:func:`_composite_pixels` over all pixels, in equal batches of tiles when the K x P slots exceed
     ``settings.slots_per_batch`` (each batch rematerialised in the backward pass, so memory stays bounded)."""
     use_pallas = settings.uses_pallas
     num_slots = ids.shape[0]
     num_batches = min(grid.num_tiles, -(-num_slots * ids.shape[1] // settings.slots_per_batch))
     if num_batches == 1:
-        return _composite_pixels(table, ids, pixels, in_image, k_pixel, cbknn, use_pallas)
+        return _composite_pixels(source, ids, pixels, in_image, k_pixel, cbknn, use_pallas)
     tiles = -(-grid.num_tiles // num_batches)
     num_batches = -(-grid.num_tiles // tiles)  # no batch of padding only
     width = tiles * grid.pixels_per_tile
@@ -347,7 +356,7 @@ def _composite_batched(table, ids, pixels, in_image, k_pixel, cbknn, settings: R
 
     @jax.checkpoint
     def batch(args):
-        return _composite_pixels(table, *args, cbknn, use_pallas)
+        return _composite_pixels(source, *args, cbknn, use_pallas)
 
     out, final, shift_sum, num_corrected = jax.lax.map(batch, per_pixel)
     crop = lambda x: x.reshape((-1,) + x.shape[2:])[: ids.shape[1]]  # noqa: E731

@@ -48,7 +48,8 @@ class StepOutputs(NamedTuple):
       transmittance that truncation left in that render; skipped: [] bool, the frame had too little valid depth
       and kept its predicted pose; retried, diverged: [] bool, tracking diverged and the frame was tracked again
       / fell back to the constant-velocity prediction (:func:`gsjax.slam.tracking.track_guarded`);
-      nonfinite_gaussians: [] Gaussians freed this frame because a parameter was not finite.
+      nonfinite_gaussians: [] Gaussians freed this frame because a parameter was not finite;
+      tracking_iters: [] int32 tracking iterations run (both attempts of a retried frame; 0 when not tracked).
     """
 
     w2c: jax.Array
@@ -66,6 +67,7 @@ class StepOutputs(NamedTuple):
     retried: jax.Array
     diverged: jax.Array
     nonfinite_gaussians: jax.Array
+    tracking_iters: jax.Array
 
 
 def sanitize_frame(frame: Frame) -> Frame:
@@ -109,7 +111,8 @@ def _coast(state: SlamState, config: SlamConfig, pose) -> tuple[SlamState, StepO
                           added=jnp.int32(0), dropped=jnp.int32(0), keyframe=jnp.bool_(False),
                           gamma=jnp.asarray(_motion(state, config), jnp.float32), nonfinite=jnp.int32(0),
                           truncated=jnp.bool_(False), truncation_residual=zero, skipped=jnp.bool_(True),
-                          retried=jnp.bool_(False), diverged=jnp.bool_(False), nonfinite_gaussians=jnp.int32(0))
+                          retried=jnp.bool_(False), diverged=jnp.bool_(False), nonfinite_gaussians=jnp.int32(0),
+                          tracking_iters=jnp.int32(0))
     new_state = dataclasses.replace(state, w2c_prev1=w2c, w2c_prev2=state.w2c_prev1,
                                     key=jax.random.split(state.key, 3)[2], frame=state.frame + 1)
     return new_state, outputs
@@ -132,13 +135,15 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
 
         def do_track():
             if pose is not None:
-                return GuardedTrack(pose, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False))
+                return GuardedTrack(pose, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False),
+                                    jnp.int32(0))
             seen = perturb_map(state.gaussians, config.noise, jax.random.fold_in(state.key, NOISE_STREAM + 1))
             return track_guarded(seen, frame.color, frame.depth, w2c_init, intrinsics, config, smooth, gamma,
                                  state.previous_tracking_loss)
 
         def skip_track():
-            return GuardedTrack(w2c_init, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False))
+            return GuardedTrack(w2c_init, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False),
+                                jnp.int32(0))
 
         tracked = jax.lax.cond(started, do_track, skip_track) if pose is None else do_track()
         w2c, tracking_loss, nonfinite = orthonormalize(tracked.w2c), tracked.loss, tracked.nonfinite
@@ -194,6 +199,7 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         retried=tracked.retried,
         diverged=tracked.diverged,
         nonfinite_gaussians=freed,
+        tracking_iters=tracked.iterations,
     )
     return new_state, outputs
 

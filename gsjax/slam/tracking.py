@@ -35,11 +35,13 @@ from gsjax.slam.views import render_view
 
 
 class TrackResult(NamedTuple):
-    """w2c [4, 4] tracked pose; loss [] at that pose; nonfinite [] int32 skipped iterations."""
+    """w2c [4, 4] tracked pose; loss [] at that pose; nonfinite [] int32 skipped iterations; iterations [] int32
+    run."""
 
     w2c: jax.Array
     loss: jax.Array
     nonfinite: jax.Array
+    iterations: jax.Array
 
 
 class TrackingObjective(NamedTuple):
@@ -65,6 +67,7 @@ def tracking_objective(
     ``smooth`` selects CB-KNN renders (keyframes in ``paper`` mode, with the keyframe colour weight)."""
     cfg = config.tracking
     gaussians = jax.lax.stop_gradient(gaussians)
+    config = dataclasses.replace(config, raster=dataclasses.replace(config.raster, pose_only=True))
     lambda_color = jnp.where(smooth, config.cbknn.lambda_color_keyframe, cfg.lambda_color) if (
         config.cbknn.smooth_renders and config.cbknn.track_keyframes
     ) else cfg.lambda_color
@@ -106,19 +109,31 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig) -> TrackResult:
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
 
-    def iteration(carry, _):
-        delta, opt_state, best_delta, best_loss = carry
+    def iteration(carry):
+        it, delta, opt_state, best_delta, best_loss, progress_at, progress_loss = carry
         loss, grad = jax.value_and_grad(lambda d: loss_fn(tangent(d)))(delta)
         updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grad), opt_state)
         new_delta = optax.apply_updates(delta, updates)
         better = jnp.isfinite(loss) & (loss < best_loss)
         candidate = delta if cfg.best_pose == "pre_step" else new_delta
         best_delta = jax.tree.map(lambda c, b: jnp.where(better, c, b), candidate, best_delta)
-        return (new_delta, opt_state, best_delta, jnp.where(better, loss, best_loss)), None
+        # Progress: the loss fell by converge_rtol below the loss of the last progress (the first finite loss is).
+        progress = jnp.isfinite(loss) & (loss < progress_loss * (1.0 - cfg.converge_rtol))
+        return (it + 1, new_delta, opt_state, best_delta, jnp.where(better, loss, best_loss),
+                jnp.where(progress, it, progress_at), jnp.where(progress, loss, progress_loss))
 
-    init = (delta0, optimizer.init(delta0), delta0, jnp.float32(jnp.inf))
-    (_, opt_state, best_delta, best_loss), _ = jax.lax.scan(iteration, init, None, length=cfg.iters)
-    return TrackResult(se3_exp(tangent(best_delta)) @ w2c_init, best_loss, nonfinite_steps(opt_state))
+    init = (jnp.int32(0), delta0, optimizer.init(delta0), delta0, jnp.float32(jnp.inf), jnp.int32(0),
+            jnp.float32(jnp.inf))
+    if cfg.converge_window > 0:
+        def running(carry):
+            it, progress_at = carry[0], carry[5]
+            return (it < cfg.iters) & (it - progress_at <= cfg.converge_window)
+
+        final = jax.lax.while_loop(running, iteration, init)
+    else:
+        final = jax.lax.scan(lambda carry, _: (iteration(carry), None), init, None, length=cfg.iters)[0]
+    iterations, _, opt_state, best_delta, best_loss = final[:5]
+    return TrackResult(se3_exp(tangent(best_delta)) @ w2c_init, best_loss, nonfinite_steps(opt_state), iterations)
 
 
 def _track_lm(view_at, loss_fn, w2c_init, config: SlamConfig, lambda_color, color, depth) -> TrackResult:
@@ -136,18 +151,21 @@ def _track_lm(view_at, loss_fn, w2c_init, config: SlamConfig, lambda_color, colo
     usable = jnp.all(jnp.isfinite(delta)) & jnp.isfinite(end_loss)
     better = usable & (end_loss < start_loss)
     best = jnp.where(better, delta, delta0)
-    return TrackResult(se3_exp(best) @ w2c_init, jnp.where(better, end_loss, start_loss), (~usable).astype(jnp.int32))
+    return TrackResult(se3_exp(best) @ w2c_init, jnp.where(better, end_loss, start_loss), (~usable).astype(jnp.int32),
+                       jnp.asarray(solution.stats["num_steps"], jnp.int32))
 
 
 class GuardedTrack(NamedTuple):
-    """:class:`TrackResult` fields, plus ``retried`` [] bool (the first attempt diverged, the frame was tracked
-    again) and ``diverged`` [] bool (no attempt stayed within the bound: ``w2c`` is the prediction)."""
+    """:class:`TrackResult` fields (``iterations`` over both attempts), plus ``retried`` [] bool (the first attempt
+    diverged, the frame was tracked again) and ``diverged`` [] bool (no attempt stayed within the bound: ``w2c`` is
+    the prediction)."""
 
     w2c: jax.Array
     loss: jax.Array
     nonfinite: jax.Array
     retried: jax.Array
     diverged: jax.Array
+    iterations: jax.Array
 
 
 def within_step_bound(w2c: jax.Array, w2c_init: jax.Array, config: SlamConfig) -> jax.Array:
@@ -201,5 +219,7 @@ def track_guarded(
     diverged = retry & ~ok_first & ~ok_second
     w2c = jnp.where(diverged, w2c_init, jnp.where(use_second, second.w2c, first.w2c))
     loss = jnp.where(use_second, second.loss, first.loss)
-    nonfinite = first.nonfinite + jnp.where(retry & (cfg.optimizer == "adam"), second.nonfinite, 0)
-    return GuardedTrack(w2c, loss, nonfinite, retry, diverged)
+    again = retry & (cfg.optimizer == "adam")
+    nonfinite = first.nonfinite + jnp.where(again, second.nonfinite, 0)
+    iterations = first.iterations + jnp.where(again, second.iterations, 0)
+    return GuardedTrack(w2c, loss, nonfinite, retry, diverged, iterations)
