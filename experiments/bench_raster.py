@@ -12,6 +12,7 @@ memory of the process.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import resource
 import time
 
@@ -54,8 +55,14 @@ def bench(width: int, height: int, variant: str, settings: RasterSettings, repea
     fwd_bwd = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2, 3, 4)))
     compile_fwd, t_fwd = _timed(fwd, gaussians, w2c, repeats=repeats)
     compile_bwd, t_bwd = _timed(fwd_bwd, *params, repeats=repeats)
-    pose_bwd = jax.jit(jax.value_and_grad(loss, argnums=4))  # tracking: the gradient w.r.t. the pose only
-    _, t_pose = _timed(pose_bwd, *params, repeats=repeats)
+    def pose_loss(delta):  # tracking: the gradient w.r.t. the pose only, on the pose_only path tracking uses
+        from gsjax.camera import se3_exp
+
+        out = render(gaussians, se3_exp(delta) @ w2c, intrinsics, dataclasses.replace(settings, pose_only=True))
+        return weighted_outputs(out, weights)
+
+    pose_bwd = jax.jit(jax.value_and_grad(pose_loss))
+    _, t_pose = _timed(pose_bwd, jnp.zeros(6), repeats=repeats)
     stats = fwd(gaussians, w2c).stats
     pixels = width * height
     grid = TileGrid.for_image(height, width, settings.tile_size)

@@ -1,0 +1,247 @@
+"""Where one steady-state SLAM frame of the ``cpu`` preset spends its time, stage by stage, and the floor.
+
+Builds the map of frames 0..T-1 with the preset (``gsjax.slam.run``), then times frame T's stages as separate
+jitted programs on that state (median of ``--repeats`` after a warm-up):
+
+* ``step``: the whole frame (track -> densify -> window -> map -> keyframe), as the scan runs it;
+* ``track``: the guarded tracker (all its iterations); ``densify``: the densification render and insertion;
+  ``window``: keyframe overlap and window choice; ``map``: the window's views and all mapping iterations;
+* the render's own stages (forward only): project, + bin, + select (the walk and the first-K extraction), the
+  whole render; each row is the cumulative program, the difference to the previous row that stage's cost.
+
+The host side of a run (reading frames, checkpoints, evaluation renders, output files, the report) comes from the
+stage timings of a real ``gsjax run`` of ``--run-frames`` frames on the same sequence.
+
+The floor: the arithmetic of one render's selection is one alpha evaluation per (pixel, candidate) pair up to the
+pixel's stop; ``floor_alpha_ms`` times exactly that many evaluations as one fused dense XLA op on this machine, and
+the slot memory the compositing touches (K x P slots x the fields read and written) is reported beside it.
+
+    python experiments/profile_frame.py --sequence synthetic_noisy [--frame 16] [--repeats 5] [--out FILE.json]
+    python experiments/profile_frame.py --sequence 7scenes --path ../shared/data/7scenes_redkitchen
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def open_sequence_for(name: str, path: Path | None, frames: int):
+    """(sequence, config) of the cpu preset at its working resolution, as ``gsjax run --preset cpu`` opens it."""
+    from gsjax.data import open_sequence
+    from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+    from gsjax.slam.presets import preset, working_downscale
+
+    if name.startswith("synthetic"):
+        base = SyntheticConfig()
+        factor = working_downscale("cpu", base.width)
+        config = SyntheticConfig(width=base.width // factor, height=base.height // factor, num_frames=frames)
+        if name == "synthetic_noisy":
+            config = config.with_sensor_noise()
+        sequence = synthetic_sequence(config)
+    else:
+        probe = open_sequence(name, path, max_frames=1)
+        sequence = open_sequence(name, path, max_frames=frames,
+                                 downscale=working_downscale("cpu", probe.intrinsics.width))
+    return sequence, preset("cpu", sequence.intrinsics.width)
+
+
+def median_ms(fn, *args, repeats: int) -> float:
+    jax.block_until_ready(fn(*args))  # compile + warm-up
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
+def device_stages(sequence, config, frame_index: int, repeats: int) -> dict:
+    """Milliseconds per stage of frame ``frame_index`` on the map SLAM built from the frames before it."""
+    from gsjax import slam
+    from gsjax.data.frame import to_device, without_ground_truth
+    from gsjax.raster import render
+    from gsjax.raster.binning import TileGrid, bin_gaussians
+    from gsjax.raster.project import project
+    from gsjax.raster.select import select_contributors
+    from gsjax.slam.densify import densify
+    from gsjax.slam.keyframes import select_window
+    from gsjax.slam.mapping import gather_window_frames, map_window
+    from gsjax.slam.system import _predicted_pose, step
+    from gsjax.slam.tracking import track_guarded
+    from gsjax.slam.views import render_view
+
+    intrinsics = sequence.intrinsics
+    frames = [sequence.read_host(i) for i in range(frame_index + 1)]
+    built = slam.run(frames[:frame_index], config, intrinsics, seed=0)
+    state = built.state
+    frame = to_device(without_ground_truth(frames[frame_index]))
+    g = state.gaussians
+    w2c0 = _predicted_pose(state)
+    key = jax.random.PRNGKey(1)
+    settings = config.raster
+    grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
+    rows = {}
+
+    rows["step"] = median_ms(jax.jit(lambda s, f, c: step(s, f, c, intrinsics)), state, frame, config, repeats=repeats)
+
+    track = jax.jit(lambda g, c, d, w, cfg: track_guarded(g, c, d, w, intrinsics, cfg, False, 0.0, jnp.float32(0)))
+    rows["track"] = median_ms(track, g, frame.color, frame.depth, w2c0, config, repeats=repeats)
+    w2c = track(g, frame.color, frame.depth, w2c0, config).w2c
+
+    def densify_stage(g, c, d, w, cfg):
+        view = render_view(g, w, intrinsics, cfg, False, 0.0)
+        return densify(g, view, c, d, w, intrinsics, cfg.densify)
+
+    dens = jax.jit(densify_stage)
+    rows["densify"] = median_ms(dens, g, frame.color, frame.depth, w2c, config, repeats=repeats)
+    g_dense = dens(g, frame.color, frame.depth, w2c, config).gaussians
+
+    window = jax.jit(lambda k, kf, d, w, cfg: select_window(k, kf, d, w, intrinsics, cfg.mapping, cfg.cbknn))
+    rows["window"] = median_ms(window, key, state.keyframes, frame.depth, w2c, config, repeats=repeats)
+    chosen = window(key, state.keyframes, frame.depth, w2c, config)
+
+    def map_stage(k, g, kf, c, d, w, cfg):
+        views = gather_window_frames(chosen, kf, c, d, w, jnp.float32(0.0), jnp.bool_(False))
+        return map_window(k, g, views, intrinsics, cfg, state.scene_radius)
+
+    rows["map"] = median_ms(jax.jit(map_stage), key, g_dense, state.keyframes, frame.color, frame.depth, w2c, config,
+                            repeats=repeats)
+
+    def projected(g, w):
+        return project(g, w, intrinsics, settings.near)
+
+    def binned(g, w):
+        p = projected(g, w)
+        return p, bin_gaussians(p.uv, p.extent, p.depth, p.visible, grid, settings.tile_capacity,
+                                settings.intersection_capacity(g.capacity, grid))
+
+    def selected(g, w):
+        p, tiles = binned(g, w)
+        return select_contributors(p, tiles, grid, settings.max_contributors, settings.tiles_per_batch, False)
+
+    rows["render_project"] = median_ms(jax.jit(projected), g_dense, w2c, repeats=repeats)
+    rows["render_bin"] = median_ms(jax.jit(binned), g_dense, w2c, repeats=repeats)
+    rows["render_select"] = median_ms(jax.jit(selected), g_dense, w2c, repeats=repeats)
+    rows["render_all"] = median_ms(jax.jit(lambda g, w: render(g, w, intrinsics, settings)), g_dense, w2c,
+                                   repeats=repeats)
+
+    # The floor of the selection's arithmetic: one alpha per (pixel, candidate) up to each pixel's stop, fused.
+    p, tiles = jax.jit(binned)(g_dense, w2c)
+    sel = jax.jit(selected)(g_dense, w2c)
+    lists = np.minimum(np.asarray(tiles.count), settings.tile_capacity)
+    in_image = np.asarray(grid.in_image())
+    kept = np.asarray(sel.num_kept)[in_image]
+    pixels = int(in_image.sum())
+    pairs_listed = int((lists[:, None] * np.ones(grid.pixels_per_tile)).reshape(-1)[in_image].sum())
+    pairs = max(pairs_listed, 1)
+    columns = max(1, pairs // pixels)
+    a = jax.random.uniform(jax.random.PRNGKey(2), (pixels, columns), minval=0.1, maxval=0.5)
+
+    @jax.jit
+    def alphas(a):
+        dx, dy = a * 3.0, a * 2.0
+        power = -0.5 * (a * dx * dx + a * dy * dy) - a * dx * dy
+        return jnp.sum(jnp.minimum(0.5 * jnp.exp(power), 0.99) >= 1.0 / 255.0)
+
+    floor = median_ms(alphas, a, repeats=repeats)
+    k = settings.max_contributors
+    return dict(
+        stages_ms=rows,
+        gaussians=int(g_dense.num_active()),
+        capacity=int(g_dense.capacity),
+        pixels=pixels,
+        tiles=grid.num_tiles,
+        mean_list=float(lists.mean()),
+        longest_list=int(lists.max()),
+        contributors_mean=float(kept.mean()),
+        contributors_p99=float(np.percentile(kept, 99)),
+        contributors_max=int(kept.max()),
+        k=k,
+        slot_fill=float(np.minimum(kept, k).mean() / k),
+        pixel_candidate_pairs=pairs_listed,
+        floor_alpha_ms=floor,
+        slot_bytes_forward=k * grid.num_tiles * grid.pixels_per_tile * 11 * 4,
+        tracking_iters=config.tracking.iters,
+        mapping_iters=config.mapping.iters,
+    )
+
+
+def host_stages(args, work: Path) -> dict:
+    """Stage timings (s) of a real ``gsjax run`` of ``--run-frames`` frames (warm compile cache after the first)."""
+    from gsjax.cli import main
+
+    dataset = ["--dataset", "synthetic"] + (["--synthetic-noise"] if args.sequence == "synthetic_noisy" else [])
+    if not args.sequence.startswith("synthetic"):
+        dataset = ["--dataset", args.sequence, "--path", str(args.path)]
+    out = work / "run"
+    argv = ["run", *dataset, "--preset", "cpu", "--max-frames", str(args.run_frames), "--out", str(out),
+            "--no-progress", "--overwrite"]
+    for item in args.set:
+        name, value = item.split("=", 1)
+        argv += [f"--{name}", value]
+    for _ in range(2):  # the first fills the compilation cache
+        if main(argv) != 0:
+            raise SystemExit("gsjax run failed")
+    timings = json.loads((out / "metrics.json").read_text())["stage_timings_s"]
+    timings["frames"] = args.run_frames
+    return timings
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sequence", default="synthetic_noisy",
+                        choices=("synthetic", "synthetic_noisy", "7scenes", "tum", "replica", "scannet"))
+    parser.add_argument("--path", type=Path, default=None)
+    parser.add_argument("--frame", type=int, default=16, help="the profiled frame (the map is built from those before)")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--run-frames", type=int, default=24, help="frames of the real run timed for the host side")
+    parser.add_argument("--no-run", action="store_true", help="skip the real run (device stages only)")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="a config override by dotted name (repeatable), e.g. raster.max_contributors=64")
+    parser.add_argument("--out", type=Path, default=None, help="write the profile as JSON here")
+    args = parser.parse_args(argv)
+    from gsjax.compilation_cache import enable_compilation_cache
+
+    enable_compilation_cache()
+    from gsjax.config_text import apply_overrides
+
+    sequence, config = open_sequence_for(args.sequence, args.path, args.frame + 1)
+    config = apply_overrides(config, dict(item.split("=", 1) for item in args.set))
+    result = dict(sequence=args.sequence, frame=args.frame, overrides=args.set, size=f"{sequence.intrinsics.width}x"
+                  f"{sequence.intrinsics.height}", device=jax.devices()[0].device_kind)
+    result.update(device_stages(sequence, config, args.frame, args.repeats))
+    if not args.no_run:
+        with tempfile.TemporaryDirectory() as work:
+            result["host_s"] = host_stages(args, Path(work))
+    s = result["stages_ms"]
+    print(f"{args.sequence} {result['size']}, frame {args.frame}: {result['gaussians']} Gaussians, "
+          f"lists {result['mean_list']:.0f} (max {result['longest_list']}), contributors "
+          f"{result['contributors_mean']:.1f} (p99 {result['contributors_p99']:.0f}, max {result['contributors_max']}, "
+          f"K {result['k']})")
+    for name, ms in s.items():
+        print(f"  {name:16s} {ms:9.2f} ms")
+    print(f"  per iteration: tracking {s['track'] / result['tracking_iters']:.2f} ms, mapping "
+          f"{s['map'] / result['mapping_iters']:.2f} ms; the step beyond its stages "
+          f"{s['step'] - s['track'] - s['densify'] - s['window'] - s['map']:.0f} ms")
+    print(f"  floor: {result['pixel_candidate_pairs']} pixel-candidate alphas fused: {result['floor_alpha_ms']:.2f} ms")
+    if "host_s" in result:
+        print("  host (s, whole run):", json.dumps(result["host_s"]))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
