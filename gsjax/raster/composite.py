@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from gsjax.camera import Intrinsics
 from gsjax.gaussians import Gaussians
-from gsjax.raster.project import gaussian_alpha, sanitized, splat, to_camera
+from gsjax.raster.project import Splat, gaussian_alpha, sanitized, splat, to_camera
 
 
 class Slots(NamedTuple):
@@ -58,8 +58,12 @@ def splat_table(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, ne
     g = sanitized(gaussians)
     x, y, z = to_camera(g.means[:, 0], g.means[:, 1], g.means[:, 2], w2c)
     s = splat(x, y, z, g.log_scales, g.logit_opacities, intrinsics, near)
+    return _slots(s, g.rgb[:, 0], g.rgb[:, 1], g.rgb[:, 2], jnp.ones_like(s.u, bool))
+
+
+def _slots(s: Splat, r, g, b, valid) -> Slots:
     return Slots(u=s.u, v=s.v, conic_a=s.conic_a, conic_b=s.conic_b, conic_c=s.conic_c, opacity=s.opacity,
-                 r=g.rgb[:, 0], g=g.rgb[:, 1], b=g.rgb[:, 2], depth=s.depth, valid=jnp.ones_like(s.u, bool))
+                 r=r, g=g, b=b, depth=s.depth, valid=valid)
 
 
 def splat_slots(gaussians: Gaussians, ids: jax.Array, w2c: jax.Array, intrinsics: Intrinsics, near) -> Slots:
@@ -73,9 +77,7 @@ def splat_slots(gaussians: Gaussians, ids: jax.Array, w2c: jax.Array, intrinsics
     raw = jnp.stack([g.means[:, 0], g.means[:, 1], g.means[:, 2], g.log_scales, g.logit_opacities, g.rgb[:, 0],
                      g.rgb[:, 1], g.rgb[:, 2]])[:, jnp.maximum(ids, 0)]  # [8, K, P]
     x, y, z = to_camera(raw[0], raw[1], raw[2], w2c)
-    s = splat(x, y, z, raw[3], raw[4], intrinsics, near)
-    return Slots(u=s.u, v=s.v, conic_a=s.conic_a, conic_b=s.conic_b, conic_c=s.conic_c, opacity=s.opacity,
-                 r=raw[5], g=raw[6], b=raw[7], depth=s.depth, valid=ids >= 0)
+    return _slots(splat(x, y, z, raw[3], raw[4], intrinsics, near), raw[5], raw[6], raw[7], ids >= 0)
 
 
 def gather(table: Slots, ids: jax.Array) -> Slots:

@@ -73,9 +73,9 @@ class TrackingConfig:
         sizes scaled by this; the result within the bound with the lower loss is kept, and when neither attempt is
         within it the frame keeps the prediction (``StepOutputs.retried``, ``diverged``). (``adam`` only: the LM
         solver has no step size to change, so a diverged LM frame keeps the prediction.)
-      converge_window: 0 (SplaTAM) runs all ``iters`` iterations; W > 0 stops a frame's ``adam`` tracking once
-        the lowest loss has not dropped by ``converge_rtol`` (relative) within the last W iterations, ``iters``
-        staying the cap (``StepOutputs.tracking_iters`` counts the iterations run).
+      converge_window: 0 (SplaTAM) runs all ``iters`` iterations; W > 0 stops a frame's ``adam`` tracking once W
+        iterations in a row have not brought the loss ``converge_rtol`` (relative) below the loss of the last
+        iteration that did, ``iters`` staying the cap (``StepOutputs.tracking_iters`` counts the iterations run).
       converge_rtol: the relative loss drop that counts as progress for ``converge_window``.
     """
 

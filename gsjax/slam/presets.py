@@ -95,9 +95,9 @@ def _preset_values(name: str) -> SlamConfig:
     # 60 frames: 0.42 -> 0.34 cm). Frame 0's map takes 1e-3 to remove the blending depth bias of fresh
     # Gaussians, which at ~8x a full-resolution pixel is centimetres (Replica sample, 80x45: 2.2 cm ATE with
     # 1e-4 on frame 0 too, no better than a constant pose).
-    # 64 contributor slots: at 80 px the contributors per pixel measured 30 mean, 48 p99, 55 max (noisy synthetic,
-    # frame 16) and up to ~70 in 7-Scenes close-ups (truncation residual <= 0.07, reported per frame), while every
-    # slot costs compositing time whether used or not (experiments/profile_frame.py).
+    # 64 contributor slots: at 80 px the contributors per pixel measured 30 mean, 48 p99, 56 max (noisy synthetic,
+    # frame 16); 12 of the first 40 7-Scenes frames have pixels with more (largest residual transmittance 0.065,
+    # reported per frame), while every slot costs compositing time whether used or not (profile_frame.py).
     return SlamConfig(
         tracking=TrackingConfig(iters=40, lr_trans=2e-3, lr_rot=2e-3, normalized_depth=True),
         mapping=MappingConfig(iters=30, window_size=10, lr_means_first=1e-3, overlap_samples=800,
