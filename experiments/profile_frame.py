@@ -18,6 +18,12 @@ the slot memory the compositing touches (K x P slots x the fields read and writt
 
     python experiments/profile_frame.py --sequence synthetic_noisy [--frame 16] [--repeats 5] [--out FILE.json]
     python experiments/profile_frame.py --sequence 7scenes --path ../shared/data/7scenes_redkitchen
+
+``--compare NAME:FIELD=V,FIELD=V ...`` instead times the step and the tracker of each named override set on the
+same state, the sets interleaved within each repeat (this machine's speed drifts by 10-30 % within minutes, so only
+ratios taken side by side mean something); ``NAME:`` alone is the preset:
+
+    python experiments/profile_frame.py --compare preset: fewer:tracking.iters=20
 """
 
 from __future__ import annotations
@@ -173,9 +179,42 @@ def device_stages(sequence, config, frame_index: int, repeats: int) -> dict:
         pixel_candidate_pairs=pairs_listed,
         floor_alpha_ms=floor,
         slot_bytes_forward=k * grid.num_tiles * grid.pixels_per_tile * 11 * 4,
-        tracking_iters=config.tracking.iters,
-        mapping_iters=config.mapping.iters,
+        tracking_iters=config.tracking.iters + config.tracking.strided_iters,
+        mapping_iters=config.mapping.iters + config.mapping.strided_iters,
     )
+
+
+def compare(sequence, config, frame_index: int, repeats: int, variants: dict) -> dict:
+    """Median ms of the whole step and of the guarded tracker per named override set, interleaved per repeat."""
+    from gsjax import slam
+    from gsjax.config_text import apply_overrides
+    from gsjax.data.frame import to_device, without_ground_truth
+    from gsjax.slam.system import _predicted_pose, step
+    from gsjax.slam.tracking import track_guarded
+
+    intrinsics = sequence.intrinsics
+    frames = [sequence.read_host(i) for i in range(frame_index + 1)]
+    state = slam.run(frames[:frame_index], config, intrinsics, seed=0).state
+    frame = to_device(without_ground_truth(frames[frame_index]))
+    w2c0 = _predicted_pose(state)
+    stages = dict(
+        step=jax.jit(lambda c: step(state, frame, c, intrinsics)),
+        track=jax.jit(lambda c: track_guarded(state.gaussians, frame.color, frame.depth, w2c0, intrinsics, c, False,
+                                              0.0, jnp.float32(0))),
+    )
+    configs = {name: apply_overrides(config, overrides) for name, overrides in variants.items()}
+    for c in configs.values():  # compile and warm up
+        for fn in stages.values():
+            jax.block_until_ready(fn(c))
+    times = {name: {stage: [] for stage in stages} for name in configs}
+    for _ in range(repeats):
+        for name, c in configs.items():
+            for stage, fn in stages.items():
+                t0 = time.perf_counter()
+                jax.block_until_ready(fn(c))
+                times[name][stage].append(time.perf_counter() - t0)
+    return {name: {stage: 1e3 * statistics.median(t) for stage, t in by_stage.items()}
+            for name, by_stage in times.items()}
 
 
 def host_stages(args, work: Path) -> dict:
@@ -211,6 +250,8 @@ def main(argv=None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="a config override by dotted name (repeatable), e.g. raster.max_contributors=64")
     parser.add_argument("--out", type=Path, default=None, help="write the profile as JSON here")
+    parser.add_argument("--compare", nargs="+", default=None, metavar="NAME:FIELD=V,...",
+                        help="time the step and the tracker of these override sets side by side instead")
     args = parser.parse_args(argv)
     from gsjax.compilation_cache import enable_compilation_cache
 
@@ -219,6 +260,18 @@ def main(argv=None) -> int:
 
     sequence, config = open_sequence_for(args.sequence, args.path, args.frame + 1)
     config = apply_overrides(config, dict(item.split("=", 1) for item in args.set))
+    if args.compare:
+        variants = {}
+        for item in args.compare:
+            name, _, sets = item.partition(":")
+            variants[name] = dict(pair.split("=", 1) for pair in sets.split(",") if pair)
+        result = compare(sequence, config, args.frame, args.repeats, variants)
+        for name, ms in result.items():
+            print(f"{args.sequence} frame {args.frame} {name:12s} step {ms['step']:7.1f} ms  track {ms['track']:7.1f} ms")
+        if args.out:
+            args.out.write_text(json.dumps(dict(sequence=args.sequence, frame=args.frame, compare=args.compare,
+                                                repeats=args.repeats, ms=result), indent=1))
+        return 0
     result = dict(sequence=args.sequence, frame=args.frame, overrides=args.set, size=f"{sequence.intrinsics.width}x"
                   f"{sequence.intrinsics.height}", device=jax.devices()[0].device_kind)
     result.update(device_stages(sequence, config, args.frame, args.repeats))
@@ -232,7 +285,7 @@ def main(argv=None) -> int:
           f"K {result['k']})")
     for name, ms in s.items():
         print(f"  {name:16s} {ms:9.2f} ms")
-    print(f"  per iteration: tracking {s['track'] / result['tracking_iters']:.2f} ms, mapping "
+    print(f"  per iteration (strided or not): tracking {s['track'] / result['tracking_iters']:.2f} ms, mapping "
           f"{s['map'] / result['mapping_iters']:.2f} ms; the step beyond its stages "
           f"{s['step'] - s['track'] - s['densify'] - s['window'] - s['map']:.0f} ms")
     print(f"  floor: {result['pixel_candidate_pairs']} pixel-candidate alphas fused: {result['floor_alpha_ms']:.2f} ms")

@@ -83,6 +83,20 @@ class Intrinsics:
             width=self.width // factor,
         )
 
+    def strided(self, row, col) -> "Intrinsics":
+        """Intrinsics of every other pixel of this image: output pixel (i, j) is input pixel (2 i + ``row``, 2 j +
+        ``col``) (offsets 0 or 1, may be traced), so ``fx' = fx / 2``, ``cx' = (cx - col) / 2``; sizes floored.
+        Rendered with the dilation divided by 4 (the 2D covariance shrinks by 4 in these pixels), the render is the
+        input render's pixels there."""
+        return Intrinsics(
+            fx=self.fx / 2.0,
+            fy=self.fy / 2.0,
+            cx=(self.cx - col) / 2.0,
+            cy=(self.cy - row) / 2.0,
+            height=self.height // 2,
+            width=self.width // 2,
+        )
+
 
 def make_intrinsics(fx: float, fy: float, cx: float, cy: float, height: int, width: int) -> Intrinsics:
     """Intrinsics with float32 scalar arrays, after checking the values (ValueError naming the bad one)."""

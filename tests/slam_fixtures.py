@@ -27,8 +27,11 @@ WIDTH, HEIGHT = 40, 30  # = the default synthetic 160x120 with `gsjax run --down
 FRAMES = 6
 CHUNK = 3
 CAPACITY = 2 * WIDTH * HEIGHT  # the runner's default capacity
-# Tiny iteration counts: the scans over iterations compile to the same program whatever the count.
-TINY_OVERRIDES = {"tracking.iters": "3", "mapping.iters": "2"}
+# Tiny iteration counts: the scans over iterations compile to the same program whatever the count. No strided
+# iterations (their renders would add to every tiny program's compile time; test_slam_tracking and test_slam_map
+# test them).
+TINY_OVERRIDES = {"tracking.iters": "3", "tracking.strided_iters": "0", "mapping.iters": "2",
+                  "mapping.strided_iters": "0"}
 
 
 @functools.lru_cache(maxsize=None)
@@ -39,7 +42,7 @@ def tiny_sequence(num_frames: int = FRAMES) -> Sequence:
 
 def tiny_config(mode: str = "off") -> SlamConfig:
     """The ``cpu`` preset at the tiny width with CB-KNN ``mode`` and tiny iteration counts, built exactly as ``gsjax
-    run --preset cpu --cbknn MODE --tracking.iters 3 --mapping.iters 2`` builds it for 40x30 frames (so the CLI
+    run --preset cpu --cbknn MODE`` with :data:`TINY_OVERRIDES` builds it for 40x30 frames (so the CLI
     tests reuse the compiled scan and record this very config)."""
     return apply_overrides(with_cbknn_mode(preset("cpu", WIDTH), mode), TINY_OVERRIDES)
 
@@ -107,8 +110,9 @@ MAP_VIEWS = (0, 2)  # frames in the mapping window of the map fixtures (GT poses
 
 
 def map_config() -> SlamConfig:
-    """The ``cpu`` preset (normalised-depth tracking) with 30 mapping iterations."""
-    return apply_overrides(preset("cpu"), {"mapping.iters": "30"})
+    """The ``cpu`` preset (normalised-depth tracking) with 30 mapping iterations, every iteration on every pixel."""
+    return apply_overrides(preset("cpu"), {"mapping.iters": "30", "mapping.strided_iters": "0",
+                                           "tracking.strided_iters": "0"})
 
 
 def first_frame_map():

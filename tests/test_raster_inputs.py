@@ -148,6 +148,15 @@ def test_non_positive_image_size_is_named_by_render(scene, name, value, call):
         call(gaussians, w2c, hand_built(**{name: value}))
 
 
+@pytest.mark.parametrize("field, value", [("near", 0.0), ("near", float("nan")), ("dilation", -0.1),
+                                          ("dilation", float("inf"))])
+def test_bad_traced_raster_settings_are_named(field, value):
+    from gsjax.raster import RasterSettings
+
+    with pytest.raises(ValueError, match=f"RasterSettings.{field} must be"):
+        RasterSettings(**{field: value})
+
+
 def test_valid_input_passes_the_checks():
     # the checks above are not triggered by a good map, even one with garbage in its free slots
     gaussians, w2c, intr = scenes.inactive_garbage(0)

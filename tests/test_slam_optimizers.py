@@ -57,10 +57,13 @@ def _pose_grads(rng, count, nan_at=()):
     return grads
 
 
+@pytest.mark.parametrize("iters, strided", [(8, 0), (3, 5)])
 @pytest.mark.parametrize("ratio", [1.0, 0.1])
-def test_pose_optimizer_is_adam_with_a_step_per_component_and_exponential_decay(ratio):
-    config = apply_overrides(preset("cpu"), {"tracking.iters": "8", "tracking.lr_final_ratio": str(ratio),
-                                             "tracking.lr_trans": "0.002", "tracking.lr_rot": "0.0005"})
+def test_pose_optimizer_is_adam_with_a_step_per_component_and_exponential_decay(ratio, iters, strided):
+    """The step sizes decay over all 8 iterations, strided (tracking.strided_iters) or not."""
+    config = apply_overrides(preset("cpu"), {"tracking.iters": str(iters), "tracking.strided_iters": str(strided),
+                                             "tracking.lr_final_ratio": str(ratio), "tracking.lr_trans": "0.002",
+                                             "tracking.lr_rot": "0.0005"})
     grads = _pose_grads(np.random.default_rng(0), 8, nan_at=(3,))
     got, skipped = run(pose_optimizer(config), grads)
     want, want_skipped = reference_adam(grads, {"rho": 2e-3, "phi": 5e-4}, eps=1e-8,
@@ -74,7 +77,7 @@ def test_pose_optimizer_is_adam_with_a_step_per_component_and_exponential_decay(
 
 @pytest.mark.parametrize("skip_at_prune", [False, True])
 def test_map_optimizer_steps_each_group_and_skips_prune_iterations_when_asked(skip_at_prune):
-    config = apply_overrides(preset("cpu"), {"mapping.iters": "6", "mapping.prune_iters": "0,4",
+    config = apply_overrides(preset("cpu"), {"mapping.iters": "6", "mapping.strided_iters": "0", "mapping.prune_iters": "0,4",
                                              "mapping.skip_step_at_prune": str(skip_at_prune)})
     cfg = config.mapping
     rng = np.random.default_rng(1)

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from gsjax.camera import Intrinsics
 from gsjax.gaussians import Gaussians
-from gsjax.raster.project import Splat, gaussian_alpha, sanitized, splat, to_camera
+from gsjax.raster.project import DILATION, Splat, gaussian_alpha, sanitized, splat, to_camera
 
 
 class Slots(NamedTuple):
@@ -53,11 +53,11 @@ class Composite(NamedTuple):
     depth_sq: jax.Array
 
 
-def splat_table(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near) -> Slots:
+def splat_table(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near, dilation=DILATION) -> Slots:
     """Project every Gaussian (with gradients) -> :class:`Slots` with fields [N], one per Gaussian slot."""
     g = sanitized(gaussians)
     x, y, z = to_camera(g.means[:, 0], g.means[:, 1], g.means[:, 2], w2c)
-    s = splat(x, y, z, g.log_scales, g.logit_opacities, intrinsics, near)
+    s = splat(x, y, z, g.log_scales, g.logit_opacities, intrinsics, near, dilation)
     return _slots(s, g.rgb[:, 0], g.rgb[:, 1], g.rgb[:, 2], jnp.ones_like(s.u, bool))
 
 
@@ -66,7 +66,8 @@ def _slots(s: Splat, r, g, b, valid) -> Slots:
                  r=r, g=g, b=b, depth=s.depth, valid=valid)
 
 
-def splat_slots(gaussians: Gaussians, ids: jax.Array, w2c: jax.Array, intrinsics: Intrinsics, near) -> Slots:
+def splat_slots(gaussians: Gaussians, ids: jax.Array, w2c: jax.Array, intrinsics: Intrinsics, near,
+                dilation=DILATION) -> Slots:
     """:class:`Slots` [K, P] projected per slot from the raw parameters of the Gaussians ``ids`` [K, P] (-1 =
     empty), with gradients w.r.t. ``w2c`` only (the map is held fixed).
 
@@ -77,7 +78,7 @@ def splat_slots(gaussians: Gaussians, ids: jax.Array, w2c: jax.Array, intrinsics
     raw = jnp.stack([g.means[:, 0], g.means[:, 1], g.means[:, 2], g.log_scales, g.logit_opacities, g.rgb[:, 0],
                      g.rgb[:, 1], g.rgb[:, 2]])[:, jnp.maximum(ids, 0)]  # [8, K, P]
     x, y, z = to_camera(raw[0], raw[1], raw[2], w2c)
-    return _slots(splat(x, y, z, raw[3], raw[4], intrinsics, near), raw[5], raw[6], raw[7], ids >= 0)
+    return _slots(splat(x, y, z, raw[3], raw[4], intrinsics, near, dilation), raw[5], raw[6], raw[7], ids >= 0)
 
 
 def gather(table: Slots, ids: jax.Array) -> Slots:

@@ -4,7 +4,7 @@ Semantics are SplaTAM's rasterizer (method_spec A.3) with DESIGN 2.2.1's pixel c
 
 * camera point ``x = R mu + t``; culled when ``z <= near``;
 * centre ``u = fx X/Z + cx``, ``v = fy Y/Z + cy`` (px);
-* ``Sigma2D = s^2 J J^T + 0.3 I`` (px^2), with the perspective Jacobian J evaluated at X/Z, Y/Z clamped to
+* ``Sigma2D = s^2 J J^T + 0.3 I`` (px^2; the dilation is ``RasterSettings.dilation``), with the perspective Jacobian J evaluated at X/Z, Y/Z clamped to
   ``+-1.3 tan(fov/2)`` (3DGS); isotropic 3D covariance so the rotation drops out;
 * per-pixel alpha ``min(0.99, o exp(-d^T Sigma2D^-1 d / 2))``, contributing where ``alpha >= 1/255``. The screen
   extent is the bounding box of that ellipse, ``d^T Sigma2D^-1 d <= 2 ln(255 o)``, so it depends on the opacity
@@ -23,7 +23,7 @@ from gsjax.gaussians import Gaussians
 
 ALPHA_MIN = 1.0 / 255.0  # smallest alpha that contributes to a pixel
 ALPHA_MAX = 0.99  # alpha clamp (straight-through gradient)
-DILATION = 0.3  # px^2 added to the 2D covariance (low-pass filter)
+DILATION = 0.3  # px^2 added to the 2D covariance (low-pass filter), the default of RasterSettings.dilation
 JACOBIAN_CLAMP = 1.3  # x/z, y/z clamp in units of tan(fov/2)
 # Relative + absolute slack (px) on the screen extent: binning must never miss a pixel that float32 rounding in
 # the per-pixel alpha test would still accept; extra candidates are harmless (the alpha test is exact).
@@ -53,8 +53,9 @@ class Splat(NamedTuple):
     in_front: jax.Array
 
 
-def splat(x, y, z, log_scale, logit_opacity, intrinsics: Intrinsics, near) -> Splat:
-    """EWA projection of isotropic Gaussians at camera-frame centres (x, y, z) (m), elementwise.
+def splat(x, y, z, log_scale, logit_opacity, intrinsics: Intrinsics, near, dilation=DILATION) -> Splat:
+    """EWA projection of isotropic Gaussians at camera-frame centres (x, y, z) (m), elementwise; ``dilation``
+    (px^2) is added to the 2D covariance.
 
     Entries behind the near plane get harmless values (and zero gradient through z); ``in_front`` marks them.
     """
@@ -67,9 +68,9 @@ def splat(x, y, z, log_scale, logit_opacity, intrinsics: Intrinsics, near) -> Sp
     ty = jnp.clip(y_over_z, -JACOBIAN_CLAMP * tan_y, JACOBIAN_CLAMP * tan_y)
     # J = [[fx/z, 0, -fx tx/z], [0, fy/z, -fy ty/z]] with tx, ty the clamped X/Z, Y/Z; Sigma3D = s^2 I.
     var_over_z2 = jnp.exp(2.0 * log_scale) / (z_safe * z_safe)
-    cov_xx = var_over_z2 * fx * fx * (1.0 + tx * tx) + DILATION
+    cov_xx = var_over_z2 * fx * fx * (1.0 + tx * tx) + dilation
     cov_xy = var_over_z2 * fx * fy * (tx * ty)
-    cov_yy = var_over_z2 * fy * fy * (1.0 + ty * ty) + DILATION
+    cov_yy = var_over_z2 * fy * fy * (1.0 + ty * ty) + dilation
     inv_det = 1.0 / (cov_xx * cov_yy - cov_xy * cov_xy)
     return Splat(
         u=fx * x_over_z + intrinsics.cx,
@@ -123,12 +124,13 @@ class Projected(NamedTuple):
     visible: jax.Array
 
 
-def project(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near: jax.Array) -> Projected:
+def project(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near: jax.Array,
+            dilation=DILATION) -> Projected:
     """Project Gaussians [N] with world-to-camera ``w2c`` [4, 4] into the image of ``intrinsics`` (values only:
     the differentiable path recomputes :func:`splat` per contributor slot)."""
     g = sanitized(jax.lax.stop_gradient(gaussians))
     x, y, z = to_camera(g.means[:, 0], g.means[:, 1], g.means[:, 2], jax.lax.stop_gradient(w2c))
-    s = splat(x, y, z, g.log_scales, g.logit_opacities, intrinsics, near)
+    s = splat(x, y, z, g.log_scales, g.logit_opacities, intrinsics, near, dilation)
     uv = jnp.stack([s.u, s.v], axis=-1)
     # Contribution region: d^T Sigma^-1 d <= r2 = 2 ln(255 o); its bounding box has half sizes r sqrt(Sigma_ii).
     r2 = 2.0 * jnp.log(jnp.maximum(s.opacity / ALPHA_MIN, 1.0))

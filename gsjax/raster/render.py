@@ -20,7 +20,7 @@ from gsjax.raster import cbknn as cb
 from gsjax.raster import pallas
 from gsjax.raster.binning import TileGrid, bin_gaussians
 from gsjax.raster.composite import Composite, blend_weights, composite, gather, slot_alpha, splat_slots, splat_table
-from gsjax.raster.project import project
+from gsjax.raster.project import DILATION, project
 from gsjax.raster.select import select_contributors
 
 _RIGID_TOL = 1e-3
@@ -55,6 +55,9 @@ class RasterSettings:
         then projected from the Gaussians' raw parameters per slot (:func:`gsjax.raster.composite.splat_slots`)
         instead of gathered from a per-Gaussian projection, so the backward pass needs no scatter-add into the N
         Gaussians. The same render either way.
+      dilation: px^2 added to every 2D covariance (3DGS's low-pass filter, 0.3), traced. Rendering every other
+        pixel of an image exactly (a strided grid: focal lengths and principal point halved, see
+        :func:`gsjax.camera.Intrinsics.strided`) takes a quarter of it.
 
     The defaults render dense SplaTAM-like maps without truncation (measured in ``experiments/raster_defaults.py``);
     whatever the settings, truncation is reported in ``Render.stats``.
@@ -70,6 +73,7 @@ class RasterSettings:
     slots_per_batch: int = dataclasses.field(default=1 << 25, metadata=dict(static=True))
     backend: str = dataclasses.field(default="auto", metadata=dict(static=True))
     pose_only: bool = dataclasses.field(default=False, metadata=dict(static=True))
+    dilation: float = DILATION
 
     def __post_init__(self):
         if self.backend not in BACKENDS:
@@ -86,6 +90,10 @@ class RasterSettings:
             np.isfinite(np.asarray(self.near)).all() and np.all(np.asarray(self.near) > 0)
         ):
             raise ValueError(f"RasterSettings.near must be a positive finite number (m), got {self.near!r}")
+        if is_checkable(self.dilation) and not (
+            np.isfinite(np.asarray(self.dilation)).all() and np.all(np.asarray(self.dilation) >= 0)
+        ):
+            raise ValueError(f"RasterSettings.dilation must be a finite number >= 0 (px^2), got {self.dilation!r}")
 
     @property
     def uses_pallas(self) -> bool:
@@ -214,8 +222,8 @@ def render(
       silhouette [H, W] = sum w, depth_sq [H, W] = sum w z^2, and truncation diagnostics in ``stats``.
 
     Conventions: pixel (row i, column j) is evaluated at (u, v) = (j, i); a camera point projects to
-    u = fx X/Z + cx, v = fy Y/Z + cy. Each Gaussian has 2D covariance s^2 J J^T + 0.3 px^2 (J's X/Z, Y/Z clamped to
-    1.3 tan(fov/2)), alpha = min(0.99, o g) with a straight-through gradient at the clamp, and contributes exactly
+    u = fx X/Z + cx, v = fy Y/Z + cy. Each Gaussian has 2D covariance s^2 J J^T + 0.3 px^2 (``settings.dilation``;
+    J's X/Z, Y/Z clamped to 1.3 tan(fov/2)), alpha = min(0.99, o g) with a straight-through gradient at the clamp, and contributes exactly
     where alpha >= 1/255. Front to back in camera depth, a pixel stops before a contributor that would leave its
     transmittance below 1e-4 (that contributor is not added); background is 0; Gaussians with z <= near are culled.
 
@@ -243,7 +251,7 @@ def _render(
     )
     grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
     with jax.named_scope("project"):
-        projected = project(gaussians, w2c, intrinsics, settings.near)
+        projected = project(gaussians, w2c, intrinsics, settings.near, settings.dilation)
     with jax.named_scope("bin"):
         tiles = bin_gaussians(
             projected.uv,
@@ -267,9 +275,10 @@ def _render(
             k_map = cb.kernel_size_map(rho, cbknn, motion)
             k_pixel = k_map.reshape(-1)[cb.pixel_cells(pixels, grid.height, grid.width, cbknn.cell)]
         if settings.pose_only:
-            source = lambda ids: splat_slots(gaussians, ids, w2c, intrinsics, settings.near)  # noqa: E731
+            def source(ids):
+                return splat_slots(gaussians, ids, w2c, intrinsics, settings.near, settings.dilation)
         else:
-            table = splat_table(gaussians, w2c, intrinsics, settings.near)
+            table = splat_table(gaussians, w2c, intrinsics, settings.near, settings.dilation)
             source = lambda ids: gather(table, ids)  # noqa: E731
         out, final_transmittance, shift_sum, num_corrected = _composite_batched(
             source, selection.ids, pixels, in_image, k_pixel, cbknn, settings, grid

@@ -77,6 +77,12 @@ class TrackingConfig:
         iterations in a row have not brought the loss ``converge_rtol`` (relative) below the loss of the last
         iteration that did, ``iters`` staying the cap (``StepOutputs.tracking_iters`` counts the iterations run).
       converge_rtol: the relative loss drop that counts as progress for ``converge_window``.
+      strided_iters: 0 (SplaTAM) tracks on every pixel only; S > 0 first runs S iterations on a quarter of the
+        pixels, every other one of each row and column (the four such grids in turn), rendered exactly as the full
+        render renders them (:meth:`gsjax.camera.Intrinsics.strided`) at a fraction of its cost, then the ``iters``
+        iterations on every pixel from there; only those compete for the best pose. ``adam`` keeps one state over
+        all S + ``iters`` (the strided loss is scaled by 4, the pixel ratio, and the step sizes decay over all);
+        ``lm`` solves on one grid with at most S steps, then on every pixel from its solution.
     """
 
     iters: int = static(40)
@@ -95,10 +101,12 @@ class TrackingConfig:
     retry_lr_scale: float = 0.5
     converge_window: int = static(0)
     converge_rtol: float = 1e-3
+    strided_iters: int = static(0)
 
     def __post_init__(self):
         _check_positive_int("tracking", "iters", self.iters)
         _check_positive_int("tracking", "converge_window", self.converge_window, 0)
+        _check_positive_int("tracking", "strided_iters", self.strided_iters, 0)
         _check_number("tracking", "converge_rtol", self.converge_rtol, 0.0, 1.0)
         if self.optimizer not in TRACKING_OPTIMIZERS:
             raise ValueError(f"tracking.optimizer must be one of {TRACKING_OPTIMIZERS}, got {self.optimizer!r}")
@@ -119,6 +127,9 @@ class MappingConfig:
 
     Attributes:
       iters: iterations per frame (a fresh Adam each frame, eps 1e-15).
+      strided_iters: 0 (SplaTAM) maps on every pixel only; S > 0 first runs S iterations on a quarter of the
+        pixels (every other one of each row and column, the four such grids in turn; the render there is the full
+        render's, see ``tracking.strided_iters``), then the ``iters`` on every pixel, one Adam over all.
       window_size: views per window: overlapping keyframes + the last keyframe + the current frame.
       lr_means, lr_rgb, lr_opacity, lr_scale: Adam step sizes of means (m), colours, logit opacities, log scales.
       lr_means_first: the means' step size when mapping frame 0 (SplaTAM: the same as ``lr_means``). Fresh
@@ -128,13 +139,14 @@ class MappingConfig:
       lambda_color, lambda_depth: loss weights; ``ssim_weight`` mixes 1 - SSIM into the colour term.
       prune_opacity: prune Gaussians with opacity below this; ``prune_scale_ratio``: or with scale above this
         fraction of the scene radius.
-      prune_iters: the mapping iterations at which pruning runs.
+      prune_iters: the mapping iterations at which pruning runs (counted from the first, strided or not).
       skip_step_at_prune: reproduce SplaTAM's quirk of skipping the Adam step at pruning iterations.
       overlap_samples: depth pixels sampled to measure keyframe overlap; ``overlap_margin``: border (px) a
         projected sample must clear to count as inside a keyframe.
     """
 
     iters: int = static(30)
+    strided_iters: int = static(0)
     window_size: int = static(24)
     lr_means: float = 1e-4
     lr_means_first: float = 1e-4
@@ -153,6 +165,7 @@ class MappingConfig:
 
     def __post_init__(self):
         _check_positive_int("mapping", "iters", self.iters)
+        _check_positive_int("mapping", "strided_iters", self.strided_iters, 0)
         _check_positive_int("mapping", "window_size", self.window_size, 2)
         _check_positive_int("mapping", "overlap_samples", self.overlap_samples)
         for name in ("lr_means", "lr_means_first", "lr_rgb", "lr_opacity", "lr_scale", "lambda_color", "lambda_depth",

@@ -16,7 +16,7 @@ from gsjax.slam.keyframes import CURRENT, Window
 from gsjax.slam.losses import mapping_loss
 from gsjax.slam.optimizers import MAP_PARAMS, finite_only_if_loss_is, map_optimizer, nonfinite_steps
 from gsjax.slam.state import KeyframeBuffer
-from gsjax.slam.views import render_view
+from gsjax.slam.views import render_view, strided_observation, strided_setup
 
 
 class WindowFrames(NamedTuple):
@@ -72,26 +72,40 @@ def map_window(
     scene_radius,
     first_map=False,
 ) -> MapResult:
-    """``config.mapping.iters`` iterations, each on one view drawn uniformly from the valid window entries;
-    pruning at ``prune_iters`` (after the gradient, before the step, as SplaTAM). ``first_map`` (traced bool): the
-    frame-0 map, whose means take the step ``lr_means_first``."""
+    """``config.mapping.strided_iters`` iterations on every other pixel (the four strided grids in turn, see
+    :func:`gsjax.slam.views.strided_setup`), then ``config.mapping.iters`` on every pixel, each on one view drawn
+    uniformly from the valid window entries; pruning at ``prune_iters`` (counted over all of them; after the
+    gradient, before the step, as SplaTAM). ``first_map`` (traced bool): the frame-0 map, whose means take the
+    step ``lr_means_first``."""
     cfg = config.mapping
     optimizer = map_optimizer(config, jnp.where(first_map, cfg.lr_means_first, cfg.lr_means))
     params = {name: getattr(gaussians, name) for name in MAP_PARAMS}
     smooth_stage = config.cbknn.smooth_renders and config.cbknn.map_keyframes
-    picks = jax.random.categorical(key, jnp.where(views.valid, 0.0, -jnp.inf), shape=(cfg.iters,))
+    total = cfg.strided_iters + cfg.iters
+    picks = jax.random.categorical(key, jnp.where(views.valid, 0.0, -jnp.inf), shape=(total,))
+    strided_config = strided_setup(config, intrinsics)
 
-    def loss_fn(params, active, view_index):
+    def full_view(g, view_index, smooth, it):
+        view = render_view(g, views.w2c[view_index], intrinsics, config, smooth, views.gamma[view_index])
+        return view, views.color[view_index], views.depth[view_index]
+
+    def strided_view(g, view_index, smooth, it):
+        row, col = (it % 4) // 2, it % 2
+        view = render_view(g, views.w2c[view_index], intrinsics.strided(row, col), strided_config, smooth,
+                           views.gamma[view_index])
+        return (view, strided_observation(views.color[view_index], row, col),
+                strided_observation(views.depth[view_index], row, col))
+
+    def loss_fn(params, active, view_index, it, view_at):
         g = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
         smooth = views.keyframe[view_index] & smooth_stage
-        view = render_view(g, views.w2c[view_index], intrinsics, config, smooth, views.gamma[view_index])
-        return mapping_loss(view, views.color[view_index], views.depth[view_index], cfg.lambda_color,
-                            cfg.lambda_depth, cfg.ssim_weight)
+        view, color, depth = view_at(g, view_index, smooth, it)
+        return mapping_loss(view, color, depth, cfg.lambda_color, cfg.lambda_depth, cfg.ssim_weight)
 
-    def iteration(carry, inputs):
+    def iteration(view_at, carry, inputs):
         params, active, opt_state = carry
         it, view_index = inputs
-        loss, grads = jax.value_and_grad(loss_fn)(params, active, view_index)
+        loss, grads = jax.value_and_grad(loss_fn)(params, active, view_index, it, view_at)
         # Free slots render nothing; only the active entries' gradients decide whether the step is finite.
         grads = {name: jnp.where(active.reshape(active.shape + (1,) * (g.ndim - 1)), g, 0.0)
                  for name, g in grads.items()}
@@ -102,9 +116,13 @@ def map_window(
         updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grads), opt_state)
         return (optax.apply_updates(params, updates), active, opt_state), loss
 
-    init = (params, gaussians.active, optimizer.init(params))
+    carry = (params, gaussians.active, optimizer.init(params))
+    steps = jnp.arange(total, dtype=jnp.int32)
+    if cfg.strided_iters:
+        carry, _ = jax.lax.scan(lambda c, x: iteration(strided_view, c, x), carry,
+                                (steps[: cfg.strided_iters], picks[: cfg.strided_iters]))
     (params, active, opt_state), losses = jax.lax.scan(
-        iteration, init, (jnp.arange(cfg.iters, dtype=jnp.int32), picks)
+        lambda c, x: iteration(full_view, c, x), carry, (steps[cfg.strided_iters:], picks[cfg.strided_iters:])
     )
     nonfinite = nonfinite_steps(opt_state)
     out = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)

@@ -28,13 +28,14 @@ def pose_optimizer(config: SlamConfig) -> optax.GradientTransformation:
     ``lr_rot`` on phi, each decaying exponentially to ``lr_final_ratio`` of itself over the iterations; an update
     whose gradient is not finite is skipped and counted (``total_notfinite`` in the state)."""
     cfg = config.tracking
+    total = cfg.strided_iters + cfg.iters  # one Adam over the strided and the full iterations
 
     def adam(lr):
-        decay = lambda count: lr * cfg.lr_final_ratio ** (count / max(cfg.iters - 1, 1))  # noqa: E731
+        decay = lambda count: lr * cfg.lr_final_ratio ** (count / max(total - 1, 1))  # noqa: E731
         return optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-8), optax.scale_by_learning_rate(decay))
 
     groups = optax.multi_transform({"rho": adam(cfg.lr_trans), "phi": adam(cfg.lr_rot)}, {"rho": "rho", "phi": "phi"})
-    return optax.apply_if_finite(groups, max_consecutive_errors=cfg.iters)  # never gives up within a frame
+    return optax.apply_if_finite(groups, max_consecutive_errors=total)  # never gives up within a frame
 
 
 def map_optimizer(config: SlamConfig, lr_means) -> optax.GradientTransformation:
@@ -47,7 +48,7 @@ def map_optimizer(config: SlamConfig, lr_means) -> optax.GradientTransformation:
     groups = {name: optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15), optax.scale_by_learning_rate(lr))
               for name, lr in rates.items()}
     optimizer = optax.apply_if_finite(optax.multi_transform(groups, {name: name for name in MAP_PARAMS}),
-                                      max_consecutive_errors=cfg.iters)  # never gives up within a frame
+                                      max_consecutive_errors=cfg.strided_iters + cfg.iters)  # never gives up
     if cfg.skip_step_at_prune and cfg.prune_iters:
         prune_iters = jnp.asarray(cfg.prune_iters, jnp.int32)
         optimizer = optax.transforms.conditionally_mask(optimizer, lambda step: ~jnp.isin(step, prune_iters))

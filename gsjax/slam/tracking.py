@@ -10,6 +10,10 @@ unconstrained and exact on SE(3). Two optimisers:
   Jacobian through the renderer (6 columns; always on the XLA path, see ``RasterSettings.for_forward_mode``); the
   result is kept only if its L1 tracking loss beats the start's.
 
+Both can start on a quarter of the pixels (``tracking.strided_iters``): every other pixel of each row and column,
+rendered exactly as the full render renders them (:meth:`gsjax.camera.Intrinsics.strided`) at a fraction of the
+cost, then finish on every pixel.
+
 :func:`track_guarded` (what SLAM calls) detects divergence: a pose beyond a physical bound from the
 constant-velocity prediction, or a loss jump over the previous frame's; the frame is retried once (``adam``) and
 falls back to the prediction when no attempt stays within the bound.
@@ -31,7 +35,7 @@ from gsjax.gaussians import Gaussians
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.losses import tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
-from gsjax.slam.views import render_view
+from gsjax.slam.views import render_view, strided_observation, strided_setup
 
 
 class TrackResult(NamedTuple):
@@ -98,20 +102,45 @@ def track(
         # LM's Jacobian is forward mode, which the Pallas compositing (a custom_vjp) does not have.
         config = dataclasses.replace(config, raster=config.raster.for_forward_mode())
     objective = tracking_objective(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
+    strided = None
+    if config.tracking.strided_iters:
+        strided = strided_problem(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
     if config.tracking.optimizer == "lm":
-        return _track_lm(objective.view_at, objective.loss, w2c_init, config, objective.lambda_color, color, depth)
-    return _track_adam(objective.loss, w2c_init, config)
+        return _track_lm((objective.view_at, color, depth), objective.loss, w2c_init, config, objective.lambda_color,
+                         None if strided is None else strided(0))
+    return _track_adam(objective.loss, w2c_init, config,
+                       None if strided is None else lambda delta, phase: strided(phase)[0].loss(delta))
 
 
-def _track_adam(loss_fn, w2c_init, config: SlamConfig) -> TrackResult:
+def strided_problem(gaussians, color, depth, w2c_init, intrinsics: Intrinsics, config: SlamConfig, smooth, gamma):
+    """``problem(phase)`` -> (the :class:`TrackingObjective` on every other pixel, (row, col) = (phase // 2,
+    phase % 2), with its loss scaled by the pixel ratio so its gradient has the full loss's scale; that colour
+    [H // 2, W // 2, 3]; that depth). The render there is the full render's pixels (:func:`strided_setup`)."""
+    config = strided_setup(config, intrinsics)
+    ratio = (intrinsics.height * intrinsics.width) / ((intrinsics.height // 2) * (intrinsics.width // 2))
+
+    def problem(phase):
+        row, col = phase // 2, phase % 2
+        color_s, depth_s = strided_observation(color, row, col), strided_observation(depth, row, col)
+        objective = tracking_objective(gaussians, color_s, depth_s, w2c_init, intrinsics.strided(row, col), config,
+                                       smooth, gamma)
+        return objective._replace(loss=lambda delta: ratio * objective.loss(delta)), color_s, depth_s
+
+    return problem
+
+
+def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None) -> TrackResult:
+    """Adam on ``loss_fn`` (delta [6] -> []) for ``tracking.iters`` iterations, after ``tracking.strided_iters`` on
+    ``strided_loss_fn(delta, phase)`` when given (phase = the iteration number mod 4: each of the four strided grids
+    in turn). Only full iterations compete for the best pose: strided losses of different grids do not compare."""
     cfg = config.tracking
     optimizer = pose_optimizer(config)
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
 
-    def iteration(carry):
+    def iteration(loss_fn, carry):
         it, delta, opt_state, best_delta, best_loss, progress_at, progress_loss = carry
-        loss, grad = jax.value_and_grad(lambda d: loss_fn(tangent(d)))(delta)
+        loss, grad = jax.value_and_grad(lambda d: loss_fn(tangent(d), it))(delta)
         updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grad), opt_state)
         new_delta = optax.apply_updates(delta, updates)
         better = jnp.isfinite(loss) & (loss < best_loss)
@@ -122,37 +151,57 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig) -> TrackResult:
         return (it + 1, new_delta, opt_state, best_delta, jnp.where(better, loss, best_loss),
                 jnp.where(progress, it, progress_at), jnp.where(progress, loss, progress_loss))
 
-    init = (jnp.int32(0), delta0, optimizer.init(delta0), delta0, jnp.float32(jnp.inf), jnp.int32(0),
-            jnp.float32(jnp.inf))
+    def scan(loss_fn, init, length):
+        return jax.lax.scan(lambda carry, _: (iteration(loss_fn, carry), None), init, None, length=length)[0]
+
+    full_loss = lambda delta, it: loss_fn(delta)  # noqa: E731
+    inf = jnp.float32(jnp.inf)
+    init = (jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf)
+    if strided_loss_fn is not None and cfg.strided_iters:
+        it, delta, opt_state = scan(lambda d, it: strided_loss_fn(d, it % 4), init, cfg.strided_iters)[:3]
+        init = (it, delta, opt_state, delta, inf, it, inf)
+    end = init[0] + cfg.iters
     if cfg.converge_window > 0:
         def running(carry):
             it, progress_at = carry[0], carry[5]
-            return (it < cfg.iters) & (it - progress_at <= cfg.converge_window)
+            return (it < end) & (it - progress_at <= cfg.converge_window)
 
-        final = jax.lax.while_loop(running, iteration, init)
+        final = jax.lax.while_loop(running, lambda carry: iteration(full_loss, carry), init)
     else:
-        final = jax.lax.scan(lambda carry, _: (iteration(carry), None), init, None, length=cfg.iters)[0]
+        final = scan(full_loss, init, cfg.iters)
     iterations, _, opt_state, best_delta, best_loss = final[:5]
     return TrackResult(se3_exp(tangent(best_delta)) @ w2c_init, best_loss, nonfinite_steps(opt_state), iterations)
 
 
-def _track_lm(view_at, loss_fn, w2c_init, config: SlamConfig, lambda_color, color, depth) -> TrackResult:
+def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided=None) -> TrackResult:
+    """Levenberg-Marquardt on ``full`` = (view_at, colour, depth) from the solution of ``strided`` (the same on
+    every other pixel, at most ``tracking.strided_iters`` steps) when given."""
     cfg = config.tracking
-
-    def residuals(delta, _):
-        return tracking_residuals(view_at(delta), color, depth, lambda_color, cfg.lambda_depth, cfg.sil_threshold,
-                                  cfg.normalized_depth)
-
     solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)
+
+    def solve(problem, start, steps):
+        view_at, color, depth = problem
+
+        def residuals(delta, _):
+            return tracking_residuals(view_at(delta), color, depth, lambda_color, cfg.lambda_depth,
+                                      cfg.sil_threshold, cfg.normalized_depth)
+
+        return optx.least_squares(residuals, solver, start, max_steps=steps, throw=False)
+
     delta0 = jnp.zeros(6, jnp.float32)
-    solution = optx.least_squares(residuals, solver, delta0, max_steps=cfg.iters, throw=False)
+    start, strided_steps = delta0, jnp.int32(0)
+    if strided is not None and cfg.strided_iters:
+        first = solve((strided[0].view_at, *strided[1:]), delta0, cfg.strided_iters)
+        start = jnp.where(jnp.all(jnp.isfinite(first.value)), first.value, delta0)
+        strided_steps = jnp.asarray(first.stats["num_steps"], jnp.int32)
+    solution = solve(full, start, cfg.iters)
     delta = solution.value
     start_loss, end_loss = loss_fn(delta0), loss_fn(delta)
     usable = jnp.all(jnp.isfinite(delta)) & jnp.isfinite(end_loss)
     better = usable & (end_loss < start_loss)
     best = jnp.where(better, delta, delta0)
     return TrackResult(se3_exp(best) @ w2c_init, jnp.where(better, end_loss, start_loss), (~usable).astype(jnp.int32),
-                       jnp.asarray(solution.stats["num_steps"], jnp.int32))
+                       strided_steps + jnp.asarray(solution.stats["num_steps"], jnp.int32))
 
 
 class GuardedTrack(NamedTuple):

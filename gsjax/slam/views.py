@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 
 from gsjax.camera import Intrinsics
 from gsjax.gaussians import Gaussians
 from gsjax.raster import render
 from gsjax.slam.config import SlamConfig
+from gsjax.slam.presets import at_width
 
 
 class RenderedView(NamedTuple):
@@ -45,6 +48,24 @@ def render_view(
         lambda: _view(render(gaussians, w2c, intrinsics, config.raster, cbknn=config.cbknn.params, motion=gamma)),
         lambda: _view(render(gaussians, w2c, intrinsics, config.raster)),
     )
+
+
+def strided_setup(config: SlamConfig, intrinsics: Intrinsics) -> SlamConfig:
+    """``config`` for renders on every other pixel of ``intrinsics``' image (:meth:`Intrinsics.strided`): a quarter
+    of the dilation (the 2D covariances shrink by 4 in those pixels), half the tile side (the tile lists stay the
+    full image's) and the pixel-sized settings at half the width. The render is then the full render's pixels
+    there, at a fraction of its cost."""
+    raster = dataclasses.replace(config.raster, dilation=config.raster.dilation / 4.0,
+                                 tile_size=max(config.raster.tile_size // 2, 1))
+    return at_width(dataclasses.replace(config, raster=raster), intrinsics.width // 2, intrinsics.width)
+
+
+def strided_observation(image: jax.Array, row, col) -> jax.Array:
+    """Every other pixel of ``image`` [H, W, ...] from (``row``, ``col``) (0 or 1, may be traced): [H // 2, W // 2,
+    ...], the pixels of :meth:`Intrinsics.strided`."""
+    h, w = image.shape[0] // 2, image.shape[1] // 2
+    blocks = image[: 2 * h, : 2 * w].reshape(h, 2, w, 2, *image.shape[2:])
+    return jnp.take(jnp.take(blocks, row, axis=1), col, axis=2)
 
 
 def is_keyframe(frame, num_frames, every: int):
