@@ -65,7 +65,8 @@ def test_mapping_reduces_the_loss_of_a_noisy_map_and_leaves_free_slots_alone(str
     result = run_map_window(noisy, config=config)
     mapped = result.gaussians
     before, after = window_losses(noisy), window_losses(mapped)
-    assert np.all(after < 0.6 * before), (before, after)  # measured: 0.23 -> 0.086 (strided: 0.097) on both views
+    # Measured on both views: 0.22 -> 0.13 (30 full); 20 strided + 10 full 0.135, 40 strided + 10 full 0.106.
+    assert np.all(after < 0.6 * before), (before, after)
     assert np.isfinite(float(result.loss))
     # Free slots are neither optimised nor activated.
     active_before, active_after = np.asarray(noisy.active), np.asarray(mapped.active)

@@ -98,14 +98,15 @@ def _preset_values(name: str) -> SlamConfig:
     # 64 contributor slots: at 80 px the contributors per pixel measured 30 mean, 48 p99, 56 max (noisy synthetic,
     # frame 16); 12 of the first 40 7-Scenes frames have pixels with more (largest residual transmittance 0.065,
     # reported per frame), while every slot costs compositing time whether used or not (profile_frame.py).
-    # Strided iterations: 30 of tracking's 40 and 20 of mapping's 30 run on every other pixel (an exact render of
-    # a quarter of the pixels, about half the cost of a full iteration): step 1309 -> 751 ms at frame 16 of the
-    # noisy synthetic room; ATE +0.02 / +0.01 cm, PSNR -0.5 / -0.6 dB there and on 7-Scenes (experiments/README.md).
+    # Strided tracking: 30 of tracking's 40 iterations run on every other pixel (an exact render of a quarter of
+    # the pixels, about half the cost of a full iteration): step 1309 -> 951 ms at frame 16 of the noisy synthetic
+    # room (experiments/README.md). Strided mapping (20 of 30) would take it to 751 ms and holds on the noisy room
+    # and 7-Scenes, but moved the 4-frame Replica sample's ATE from 0.85 to 1.00 cm: mapping stays full.
     # (Tile lists of 256 and 2 pairs per Gaussian slot made binning 10 % cheaper, but cut the lists of 22 of 40
     # 7-Scenes frames, residual transmittance up to 0.69: the raster defaults stay.)
     return SlamConfig(
         tracking=TrackingConfig(iters=10, strided_iters=30, lr_trans=2e-3, lr_rot=2e-3, normalized_depth=True),
-        mapping=MappingConfig(iters=10, strided_iters=20, window_size=10, lr_means_first=1e-3, overlap_samples=800,
+        mapping=MappingConfig(iters=30, window_size=10, lr_means_first=1e-3, overlap_samples=800,
                               overlap_margin=2.5),
         cbknn=_cbknn_values(8.0),
         scene_radius_depth_ratio=2.0,
