@@ -267,7 +267,8 @@ def main(argv=None) -> int:
             variants[name] = dict(pair.split("=", 1) for pair in sets.split(",") if pair)
         result = compare(sequence, config, args.frame, args.repeats, variants)
         for name, ms in result.items():
-            print(f"{args.sequence} frame {args.frame} {name:12s} step {ms['step']:7.1f} ms  track {ms['track']:7.1f} ms")
+            print(f"{args.sequence} frame {args.frame} {name:12s} step {ms['step']:7.1f} ms  "
+                  f"track {ms['track']:7.1f} ms")
         if args.out:
             args.out.write_text(json.dumps(dict(sequence=args.sequence, frame=args.frame, compare=args.compare,
                                                 repeats=args.repeats, ms=result), indent=1))

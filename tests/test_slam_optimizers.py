@@ -77,7 +77,8 @@ def test_pose_optimizer_is_adam_with_a_step_per_component_and_exponential_decay(
 
 @pytest.mark.parametrize("skip_at_prune", [False, True])
 def test_map_optimizer_steps_each_group_and_skips_prune_iterations_when_asked(skip_at_prune):
-    config = apply_overrides(preset("cpu"), {"mapping.iters": "6", "mapping.strided_iters": "0", "mapping.prune_iters": "0,4",
+    config = apply_overrides(preset("cpu"), {"mapping.iters": "6", "mapping.strided_iters": "0",
+                                             "mapping.prune_iters": "0,4",
                                              "mapping.skip_step_at_prune": str(skip_at_prune)})
     cfg = config.mapping
     rng = np.random.default_rng(1)

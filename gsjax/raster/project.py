@@ -4,8 +4,9 @@ Semantics are SplaTAM's rasterizer (method_spec A.3) with DESIGN 2.2.1's pixel c
 
 * camera point ``x = R mu + t``; culled when ``z <= near``;
 * centre ``u = fx X/Z + cx``, ``v = fy Y/Z + cy`` (px);
-* ``Sigma2D = s^2 J J^T + 0.3 I`` (px^2; the dilation is ``RasterSettings.dilation``), with the perspective Jacobian J evaluated at X/Z, Y/Z clamped to
-  ``+-1.3 tan(fov/2)`` (3DGS); isotropic 3D covariance so the rotation drops out;
+* ``Sigma2D = s^2 J J^T + 0.3 I`` (px^2; the dilation is ``RasterSettings.dilation``), with the perspective
+  Jacobian J evaluated at X/Z, Y/Z clamped to ``+-1.3 tan(fov/2)`` (3DGS); isotropic 3D covariance so the
+  rotation drops out;
 * per-pixel alpha ``min(0.99, o exp(-d^T Sigma2D^-1 d / 2))``, contributing where ``alpha >= 1/255``. The screen
   extent is the bounding box of that ellipse, ``d^T Sigma2D^-1 d <= 2 ln(255 o)``, so it depends on the opacity
   and no contributing pixel is missed.

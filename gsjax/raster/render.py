@@ -223,9 +223,10 @@ def render(
 
     Conventions: pixel (row i, column j) is evaluated at (u, v) = (j, i); a camera point projects to
     u = fx X/Z + cx, v = fy Y/Z + cy. Each Gaussian has 2D covariance s^2 J J^T + 0.3 px^2 (``settings.dilation``;
-    J's X/Z, Y/Z clamped to 1.3 tan(fov/2)), alpha = min(0.99, o g) with a straight-through gradient at the clamp, and contributes exactly
-    where alpha >= 1/255. Front to back in camera depth, a pixel stops before a contributor that would leave its
-    transmittance below 1e-4 (that contributor is not added); background is 0; Gaussians with z <= near are culled.
+    J's X/Z, Y/Z clamped to 1.3 tan(fov/2)), alpha = min(0.99, o g) with a straight-through gradient at the clamp,
+    and contributes exactly where alpha >= 1/255. Front to back in camera depth, a pixel stops before a contributor that
+    would leave its transmittance below 1e-4 (that contributor is not added); background is 0; Gaussians with z <= near
+    are culled.
 
     Pure and traceable: ``jax.jit``, ``jax.grad`` (w.r.t. every Gaussian field and the pose) and ``jax.vmap``
     (over poses, stacked maps or CB-KNN parameters) all work on both backends, ``jax.jvp`` on the XLA path

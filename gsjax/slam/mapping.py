@@ -16,7 +16,7 @@ from gsjax.slam.keyframes import CURRENT, Window
 from gsjax.slam.losses import mapping_loss
 from gsjax.slam.optimizers import MAP_PARAMS, finite_only_if_loss_is, map_optimizer, nonfinite_steps
 from gsjax.slam.state import KeyframeBuffer
-from gsjax.slam.views import render_view, strided_observation, strided_setup
+from gsjax.slam.views import render_view, strided_frame, strided_setup
 
 
 class WindowFrames(NamedTuple):
@@ -90,11 +90,9 @@ def map_window(
         return view, views.color[view_index], views.depth[view_index]
 
     def strided_view(g, view_index, smooth, it):
-        row, col = (it % 4) // 2, it % 2
-        view = render_view(g, views.w2c[view_index], intrinsics.strided(row, col), strided_config, smooth,
-                           views.gamma[view_index])
-        return (view, strided_observation(views.color[view_index], row, col),
-                strided_observation(views.depth[view_index], row, col))
+        color, depth, intrinsics_s = strided_frame(views.color[view_index], views.depth[view_index], intrinsics, it % 4)
+        view = render_view(g, views.w2c[view_index], intrinsics_s, strided_config, smooth, views.gamma[view_index])
+        return view, color, depth
 
     def loss_fn(params, active, view_index, it, view_at):
         g = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)

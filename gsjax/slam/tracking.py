@@ -35,7 +35,7 @@ from gsjax.gaussians import Gaussians
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.losses import tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
-from gsjax.slam.views import render_view, strided_observation, strided_setup
+from gsjax.slam.views import render_view, strided_frame, strided_setup
 
 
 class TrackResult(NamedTuple):
@@ -120,10 +120,8 @@ def strided_problem(gaussians, color, depth, w2c_init, intrinsics: Intrinsics, c
     ratio = (intrinsics.height * intrinsics.width) / ((intrinsics.height // 2) * (intrinsics.width // 2))
 
     def problem(phase):
-        row, col = phase // 2, phase % 2
-        color_s, depth_s = strided_observation(color, row, col), strided_observation(depth, row, col)
-        objective = tracking_objective(gaussians, color_s, depth_s, w2c_init, intrinsics.strided(row, col), config,
-                                       smooth, gamma)
+        color_s, depth_s, intrinsics_s = strided_frame(color, depth, intrinsics, phase)
+        objective = tracking_objective(gaussians, color_s, depth_s, w2c_init, intrinsics_s, config, smooth, gamma)
         return objective._replace(loss=lambda delta: ratio * objective.loss(delta)), color_s, depth_s
 
     return problem

@@ -68,6 +68,13 @@ def strided_observation(image: jax.Array, row, col) -> jax.Array:
     return jnp.take(jnp.take(blocks, row, axis=1), col, axis=2)
 
 
+def strided_frame(color: jax.Array, depth: jax.Array, intrinsics: Intrinsics, phase):
+    """(colour [H // 2, W // 2, 3], depth [H // 2, W // 2], their intrinsics) of strided grid ``phase`` (0-3, may be
+    traced): every other pixel from (row, col) = (phase // 2, phase % 2)."""
+    row, col = phase // 2, phase % 2
+    return strided_observation(color, row, col), strided_observation(depth, row, col), intrinsics.strided(row, col)
+
+
 def is_keyframe(frame, num_frames, every: int):
     """SplaTAM's keyframe rule (A.10): frame 0, every ``every``-th frame ((t+1) % every == 0), the second-to-last."""
     return (frame == 0) | ((frame + 1) % every == 0) | (frame == num_frames - 2)
