@@ -522,6 +522,9 @@ def _add_sweep(sub) -> None:
     p.add_argument("--vmap-width", type=int, default=None, metavar="V",
                    help="configs stacked into one vmapped program call, sharded over the devices (default: 1 on "
                         "CPU, where the vmapped scan is slower per config, 64 on accelerators)")
+    p.add_argument("--devices", type=int, default=None, metavar="N",
+                   help="CPU devices the configs are spread over, running at the same time (default: one per core, "
+                        "at most the configs of a batch; ignored when XLA_FLAGS forces a count or on accelerators)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the previous sweep in --out (removes gsjax's sweep outputs there, nothing else)")
     p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk (default 8)")
@@ -532,24 +535,33 @@ def _add_sweep(sub) -> None:
 
 def _cmd_sweep(args) -> int:
     from gsjax.io.run_dir import SWEEP_OUTPUTS, check_run_dir
-    from gsjax.sweep import SweepOptions, expand_grid, maybe_initialize_distributed, parse_grid, run_sweep
+    from gsjax.sweep import (SweepOptions, available_cores, batch_size, expand_grid, maybe_initialize_distributed,
+                             parse_grid, request_cpu_devices, run_sweep)
 
     _quiet_logs()
     if args.seeds < 1:
         raise UserError(f"--seeds must be >= 1, got {args.seeds}")
     axes = [parse_grid(text) for text in args.grid]
 
-    expand_grid(_configure(args), axes, [args.seed])  # bad overrides and grid values are reported before reading data
+    if args.devices is not None and args.devices < 1:
+        raise UserError(f"--devices must be >= 1, got {args.devices}")
+    # Bad overrides and grid values are reported before reading data.
+    configs = len(expand_grid(_configure(args), axes, [args.seed])) * args.seeds
     options = SweepOptions(out=args.out, chunk=args.chunk, batch=args.batch, vmap_width=args.vmap_width,
                            eval_every=args.eval_every,
                            progress=not args.no_progress, overwrite=args.overwrite)
     check_run_dir(args.out, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
+    request_cpu_devices(args.devices or min(available_cores(), batch_size(args.batch, configs)))
     maybe_initialize_distributed()
     (sequence, factor), input_warnings = _dataset_warnings(lambda: _open_run_sequence(args))
     describe = _describe(args, sequence, factor)
     seeds = list(range(args.seed, args.seed + args.seeds))
     rows = run_sweep(sequence, _configure(args, sequence.intrinsics.width), axes, seeds, options, describe=describe,
                      input_warnings=tuple(input_warnings))
+    import jax
+
+    if jax.process_index() != 0:  # a multi-host sweep's other processes wrote nothing
+        return 0
     best = min((r for r in rows if r["ate_rmse_cm"] is not None), key=lambda r: r["ate_rmse_cm"], default=None)
     if best is not None:
         chosen = ", ".join(f"{k}={best[k]}" for k in (a.field for a in axes)) or "the base config"

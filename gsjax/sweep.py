@@ -7,12 +7,14 @@ time over the same frames (:func:`gsjax.slam.driver.batch_chunk_loop`, bounding 
 ``--vmap-width V`` configs are stacked and run as ``jax.vmap`` of the whole tracking + mapping scan, the stacked
 axis sharded over every device of a 1-D mesh. With V = 1 (the CPU default: XLA:CPU runs the vmapped scan slower
 per config than the plain one) each config is one call of the plain program, configs spread round-robin over the
-devices and dispatched together, and every row is bit for bit the separate ``gsjax run``.
+devices and dispatched together, and every row is bit for bit the separate ``gsjax run``. On CPU the CLI asks for
+one device per core (:func:`request_cpu_devices`), so that many configs run at the same time.
 
-Multi-host: start every host with the same command after ``jax.distributed.initialize()`` (e.g. set
-``GSJAX_DISTRIBUTED=1`` and JAX's coordinator variables, see :func:`maybe_initialize_distributed`); the mesh then
-spans every process's devices, each process places its own shards, results are gathered to every process and
-process 0 writes the outputs. (Single-host use is what the tests exercise.)
+Multi-host: start every process with the same command and ``GSJAX_DISTRIBUTED=1`` (see
+:func:`maybe_initialize_distributed`); the mesh then spans every process's devices. With V = 1 each process runs
+the configs of its own devices and the finished ones are gathered (:func:`share_results`); a stacked group is
+sharded over the processes and gathered after each chunk. Process 0 writes every output; the others write nothing.
+Tested with two processes on one machine.
 
 Outputs in ``DIR``: ``sweep.csv`` and ``sweep.md`` (a row per config), ``sweep.png`` (ATE heat map), ``sweep.json``
 (the grid, programs and timings) and ``runs/NNN/`` per config (``trajectory.txt``, ``metrics.json``, ``config.json``
@@ -27,6 +29,7 @@ import io
 import itertools
 import math
 import os
+import pickle
 import time
 from pathlib import Path
 
@@ -110,10 +113,39 @@ def static_fields(base: SlamConfig, axes: list[GridAxis]) -> list[str]:
 
 
 def maybe_initialize_distributed() -> None:
-    """``jax.distributed.initialize()`` when ``GSJAX_DISTRIBUTED=1`` (its coordinator, process count and id come
-    from JAX's own environment variables or the cluster's, e.g. SLURM)."""
-    if os.environ.get("GSJAX_DISTRIBUTED") == "1":
-        jax.distributed.initialize()
+    """``jax.distributed.initialize()`` when ``GSJAX_DISTRIBUTED=1``. The coordinator, process count and id come from
+    ``JAX_COORDINATOR_ADDRESS`` (host:port), ``GSJAX_NUM_PROCESSES`` and ``GSJAX_PROCESS_ID`` where set, else from
+    the cluster's environment (e.g. SLURM, Open MPI) as JAX detects it."""
+    if os.environ.get("GSJAX_DISTRIBUTED") != "1":
+        return
+    given = {name: os.environ.get(f"GSJAX_{name.upper()}") for name in ("num_processes", "process_id")}
+    try:
+        jax.distributed.initialize(**{name: int(value) for name, value in given.items() if value is not None})
+    except ValueError as err:
+        raise ValueError(f"GSJAX_DISTRIBUTED=1: cannot start the distributed runtime: {err}") from None
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def request_cpu_devices(count: int) -> int:
+    """Ask JAX for ``count`` CPU devices before its backend starts, so that single-config programs placed on
+    different devices run at the same time (one per core: XLA:CPU keeps one SLAM step on about one core). Returns
+    the count asked for, or 0 when it could not be changed: ``XLA_FLAGS`` already forces a count, or the backend is
+    already up (an in-process caller keeps the devices it has). Accelerator runs are unaffected (their devices form
+    the mesh)."""
+    if count < 1 or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+        return 0
+    try:
+        jax.config.update("jax_num_cpu_devices", count)
+    except RuntimeError:  # the backend is initialised already
+        return 0
+    return count
 
 
 def batch_mesh():
@@ -133,12 +165,15 @@ def place_batch(tree, mesh):
 
 
 def to_host(tree):
-    """A (possibly multi-process) tree as numpy on every process."""
-    if jax.process_count() > 1:
-        from jax.experimental import multihost_utils
+    """A tree as numpy; an array sharded over several processes is gathered to every process (each must call)."""
+    from jax.experimental import multihost_utils
 
-        return multihost_utils.process_allgather(tree, tiled=True)
-    return jax.device_get(tree)
+    def get(x):
+        if isinstance(x, jax.Array) and not x.is_fully_addressable:
+            return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+        return jax.device_get(x)
+
+    return jax.tree_util.tree_map(get, tree)
 
 
 def batch_size(requested: int | None, configs: int) -> int:
@@ -162,10 +197,12 @@ def _groups(states: list, configs: list, width: int, mesh):
     ``width`` configs stacked and sharded over the mesh (the last group padded with repeats of its last config).
     -> (groups, the batch indices each group holds, the placement function for grown states)."""
     devices = list(mesh.devices.flat)
-    if width == 1:
-        groups = [Group(jax.device_put(s, devices[i % len(devices)]), jax.device_put(c, devices[i % len(devices)]))
-                  for i, (s, c) in enumerate(zip(states, configs))]
-        return groups, [[i] for i in range(len(states))], lambda g, s: jax.device_put(s, devices[g % len(devices)])
+    if width == 1:  # config i on device i mod D; a process runs the configs of its own devices
+        local = [i for i in range(len(states)) if devices[i % len(devices)].process_index == jax.process_index()]
+        groups = [Group(jax.device_put(states[i], devices[i % len(devices)]),
+                        jax.device_put(configs[i], devices[i % len(devices)])) for i in local]
+        return (groups, [[i] for i in local],
+                lambda g, s: jax.device_put(s, devices[local[g] % len(devices)]))
     groups, members = [], []
     for begin in range(0, len(states), width):
         index = list(range(begin, min(begin + width, len(states))))
@@ -177,16 +214,38 @@ def _groups(states: list, configs: list, width: int, mesh):
 
 
 def _per_config(groups, members, parts, final_states, count):
-    """(final state, outputs [T, ...]) per batch entry, from the groups' per-chunk outputs."""
+    """(final state, outputs [T, ...]) per batch entry, from the groups' per-chunk outputs; None for the configs
+    another process ran."""
     out = [None] * count
     for g, (group, index) in enumerate(zip(groups, members)):
         outputs = concat_outputs([chunk[g] for chunk in parts], batched=group.stacked)
+        state = to_host(final_states[g]) if group.stacked else final_states[g]
         for j, i in enumerate(index):
             if group.stacked:
-                out[i] = (unstack_tree(final_states[g], j), unstack_tree(outputs, j))
+                out[i] = (unstack_tree(state, j), unstack_tree(outputs, j))
             else:
                 out[i] = (final_states[g], outputs)
     return out
+
+
+def share_results(per_config: list) -> list:
+    """Every process's entries of ``per_config`` (None where another process ran the config) on every process, as
+    numpy: each process pickles its own and all-gathers the bytes. One process: returned as given."""
+    if jax.process_count() == 1:
+        return per_config
+    from jax.experimental import multihost_utils
+
+    mine = {i: jax.device_get(entry) for i, entry in enumerate(per_config) if entry is not None}
+    blob = np.frombuffer(pickle.dumps(mine), np.uint8)
+    sizes = np.asarray(multihost_utils.process_allgather(np.array([blob.size], np.int64))).reshape(-1)
+    padded = np.zeros(int(sizes.max()), np.uint8)
+    padded[:blob.size] = blob
+    blobs = np.asarray(multihost_utils.process_allgather(padded))
+    shared = list(per_config)
+    for process, size in enumerate(sizes):
+        for i, entry in pickle.loads(blobs[process, :size].tobytes()).items():
+            shared[i] = shared[i] if shared[i] is not None else entry
+    return shared
 
 
 # ------------------------------------------------------------------------------------------ the sweep
@@ -224,12 +283,14 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
 
     points = expand_grid(base, axes, seeds)
     out = Path(options.out)
-    check_run_dir(out, overwrite=options.overwrite, outputs=SWEEP_OUTPUTS)
+    writer = jax.process_index() == 0  # the other processes of a multi-host sweep write nothing
+    if writer:
+        check_run_dir(out, overwrite=options.overwrite, outputs=SWEEP_OUTPUTS)
     sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
-    if options.overwrite:
+    if writer and options.overwrite:
         clear_previous_run(out, SWEEP_OUTPUTS)
-    writer = jax.process_index() == 0
-    out.mkdir(parents=True, exist_ok=True)
+    if writer:
+        out.mkdir(parents=True, exist_ok=True)
     k = sequence.intrinsics
     height, width_px, total = k.height, k.width, len(sequence)
     mesh = batch_mesh()
@@ -247,7 +308,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
     say(f"gsjax sweep: {len(points)} configs in {len(groups)} program(s), {len(batches)} batch(es) of up to "
         f"{max(len(b) for b in batches)} on {devices} device(s), {width} config(s) vmapped per program call, "
         f"{total} frames each")
-    progress = Progress(total * len(batches), 0, options.progress)
+    progress = Progress(total * len(batches), 0, options.progress and writer)
     camera = _camera_record(sequence)
     rows: list[dict] = []
     timings = dict(slam_s=0.0, regrow_s=0.0, read_frames_s=0.0, outputs_s=0.0, first_chunk_s=[])
@@ -265,9 +326,9 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
                                f"found no free slot at frames {first}-{last}; growing to {capacity} slots and "
                                "re-running the chunk")
 
-            parts, slam_s, regrow_s, first = [], 0.0, 0.0, None
+            parts, slam_s, regrow_s, first, final_states = [], 0.0, 0.0, None, []
             for chunk in batch_chunk_loop(groups_, sequence.read_host, total, k, chunk=options.chunk,
-                                          on_grow=on_grow, place=place):
+                                          on_grow=on_grow, place=place, fetch=to_host):
                 parts.append(chunk.outputs)
                 final_states = chunk.states
                 slam_s += chunk.seconds
@@ -278,9 +339,9 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
             timings["slam_s"] += slam_s
             timings["regrow_s"] += regrow_s
             timings["first_chunk_s"].append(first)
-            per_config = _per_config(groups_, members, parts, final_states, len(batch))
-            for state, _ in per_config:
+            for state in final_states:  # this process's groups
                 used_devices |= {d.id for d in state.gaussians.means.devices()}
+            per_config = share_results(_per_config(groups_, members, parts, final_states, len(batch)))
             t0 = time.perf_counter()
             for i, point in enumerate(batch):
                 state, outputs = per_config[i]
@@ -299,7 +360,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
                                             RunOptions(out=run_dir, chunk=options.chunk, seed=point.seed,
                                                        eval_every=options.eval_every, samples=options.samples,
                                                        progress=False),
-                                            to_host(state), run_outputs, run_timings, record, list(input_warnings))
+                                            jax.device_get(state), run_outputs, run_timings, record, list(input_warnings))
                     rows.append(_row(point, metrics, seconds, run_dir.relative_to(out)))
             timings["outputs_s"] += time.perf_counter() - t0
     finally:

@@ -6,6 +6,8 @@ import pytest
 from gsjax.compilation_cache import enable_compilation_cache
 
 enable_compilation_cache()
+# Start the backend now: an in-process `gsjax sweep` would otherwise choose this process's CPU device count.
+jax.devices()
 
 
 _MAPS_BEFORE_RELEASE = 20000

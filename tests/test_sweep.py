@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -188,6 +189,7 @@ def test_bad_sweep_arguments_are_one_line_errors(tmp_path, capsys, argv, message
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.slow  # 45 s; the default suite keeps the two-process sweep (width 1), the slow one both sharded cases
 def test_the_vmapped_axis_is_sharded_over_two_host_devices_with_the_same_results(vmapped_dir, tmp_path):
     """XLA_FLAGS forces two CPU devices: each vmapped group of 2 is split one config per device."""
     out = tmp_path / "sharded"
@@ -204,3 +206,50 @@ def test_the_vmapped_axis_is_sharded_over_two_host_devices_with_the_same_results
     assert len(rows) == CONFIGS
     for row in rows:
         np.testing.assert_allclose(_trajectory(out / row["run"]), _trajectory(vmapped_dir / row["run"]), atol=1e-3)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("width", ["1", pytest.param("2", marks=pytest.mark.slow)])
+def test_a_sweep_over_two_processes_gives_the_rows_of_one_process_and_only_process_0_writes(
+        width, sweep_dir, vmapped_dir, tmp_path):
+    """Two processes on this machine join one `gsjax sweep` through jax.distributed (coordinator on 127.0.0.1, CPU
+    collectives), one CPU device each. Width 1: each process runs the configs of its device, process 0 gathers them.
+    Width 2: each vmapped pair is sharded over the two processes. Process 0 writes everything; process 1 is given its
+    own --out, which must stay absent."""
+    env = dict(os.environ, GSJAX_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{_free_port()}",
+               GSJAX_NUM_PROCESSES="2")
+    env.pop("XLA_FLAGS", None)
+    code = "import sys; from gsjax.cli import main; sys.exit(main(sys.argv[1:]))"
+    outs = [tmp_path / "p0", tmp_path / "p1"]
+    procs = [subprocess.Popen([sys.executable, "-c", code, "sweep", "--out", str(outs[i]), *TINY_RUN, *GRID,
+                               "--seeds", str(SEEDS), "--devices", "1", "--vmap-width", width],
+                              env=dict(env, GSJAX_PROCESS_ID=str(i)),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for i in range(2)]
+    try:
+        done = [p.communicate(timeout=600) for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+    for p, (_, err) in zip(procs, done):
+        assert p.returncode == 0, err[-2000:]
+    assert "on 2 device(s)" in done[0][0]
+    assert not outs[1].exists() and "outputs in" not in done[1][0]
+    summary = json.loads((outs[0] / "sweep.json").read_text())
+    assert summary["devices"] == 2 and summary["configs"] == CONFIGS and summary["vmap_width"] == int(width)
+    two_processes = read_sweep_csv(outs[0] / "sweep.csv")
+    assert len(two_processes) == CONFIGS
+    if width == "1":  # the plain program per config: the rows of the one-process sweep exactly
+        assert [{k: v for k, v in r.items() if k != "seconds"} for r in two_processes] == [
+            {k: v for k, v in r.items() if k != "seconds"} for r in read_sweep_csv(sweep_dir / "sweep.csv")]
+    for row in two_processes:  # configs 1 and 3 ran on process 1's device and were gathered
+        mine, reference = _trajectory(outs[0] / row["run"]), _trajectory((sweep_dir if width == "1" else vmapped_dir)
+                                                                         / row["run"])
+        if width == "1":
+            np.testing.assert_array_equal(mine, reference)
+        else:
+            np.testing.assert_allclose(mine, reference, atol=1e-3)

@@ -137,13 +137,15 @@ def batch_chunk_loop(
     poses: np.ndarray | None = None,
     on_grow: Callable[[int, int, int, int, int], None] | None = None,
     place: Callable | None = None,
+    fetch: Callable = jax.device_get,
 ) -> Iterator[BatchChunk]:
     """:func:`chunk_loop` for several groups over the same frames (read once per chunk): every group's chunk is
     dispatched before any result is awaited, so groups placed on different devices run at the same time.
 
     A group whose chunk dropped Gaussians is grown (every entry of a stacked group) and re-run on its own;
     ``on_grow(group, dropped, first, last, new_capacity)`` is told first. ``place(group_index, state)`` puts a grown
-    state back where the group lives (None: JAX's default placement).
+    state back where the group lives (None: JAX's default placement). ``fetch`` brings a chunk's outputs to the
+    host (a multi-process sweep gathers a group sharded over processes).
     """
     place = place or (lambda index, state: state)
     states = [g.state for g in groups]
@@ -162,7 +164,7 @@ def batch_chunk_loop(
         launched = [_call(g._replace(state=s), frames, valid, intrinsics, chunk_poses) for g, s in zip(groups, states)]
         new_states, outputs, regrow_s = [], [], 0.0
         for index, (group, (new_state, out)) in enumerate(zip(groups, launched)):
-            out = jax.device_get(out)
+            out = fetch(out)
             state = states[index]
             while (dropped := int(np.sum(np.asarray(out.dropped)[..., :count]))) > 0:
                 t1 = time.perf_counter()
@@ -172,7 +174,7 @@ def batch_chunk_loop(
                 state = place(index, _grow_batch(state, jnp.zeros(capacity)) if group.stacked
                               else grow_capacity(state, capacity))
                 new_state, out = _call(group._replace(state=state), frames, valid, intrinsics, chunk_poses)
-                out = jax.device_get(out)
+                out = fetch(out)
                 regrow_s += time.perf_counter() - t1
             new_states.append(new_state)
             # Per-frame fields are [C, ...], or [V, C, ...] after vmap over the scan.
