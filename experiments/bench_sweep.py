@@ -36,18 +36,21 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--cbknn", default="paper")
+    parser.add_argument("--devices", type=int, default=None, help="gsjax sweep --devices (default: its own)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     data = ["--dataset", "synthetic", "--max-frames", str(args.frames), "--cbknn", args.cbknn, "--no-progress"]
     configs = [(a, k) for a in ALPHAS for k in K0S]
-    results = dict(frames=args.frames, configs=len(configs), cbknn=args.cbknn, cpu_count=os.cpu_count(), passes={})
+    results = dict(frames=args.frames, configs=len(configs), cbknn=args.cbknn, cpu_count=os.cpu_count(),
+                   devices=args.devices, passes={})
     caches = {name: Path(tempfile.mkdtemp(prefix=f"gsjax_bench_{name}_")) for name in ("sweep", "separate")}
     try:
         for cache_state in ("cold", "warm"):
             out = args.out / cache_state
             shutil.rmtree(out, ignore_errors=True)
             sweep_s = _gsjax(["sweep", "--out", str(out / "sweep"), *data, "--grid", "cbknn.params.alpha=" +
-                              ",".join(ALPHAS), "--grid", "cbknn.params.k0=" + ",".join(K0S)], caches["sweep"])
+                              ",".join(ALPHAS), "--grid", "cbknn.params.k0=" + ",".join(K0S)]
+                             + (["--devices", str(args.devices)] if args.devices else []), caches["sweep"])
             summary = json.loads((out / "sweep" / "sweep.json").read_text())
             separate = []
             for i, (alpha, k0) in enumerate(configs):

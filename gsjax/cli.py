@@ -523,8 +523,9 @@ def _add_sweep(sub) -> None:
                    help="configs stacked into one vmapped program call, sharded over the devices (default: 1 on "
                         "CPU, where the vmapped scan is slower per config, 64 on accelerators)")
     p.add_argument("--devices", type=int, default=None, metavar="N",
-                   help="CPU devices the configs are spread over, running at the same time (default: one per core, "
-                        "at most the configs of a batch; ignored when XLA_FLAGS forces a count or on accelerators)")
+                   help="CPU devices the configs are spread over, running at the same time (default: one per two "
+                        "cores, as one SLAM program keeps about 1.3 cores busy, at most the configs of a batch; "
+                        "ignored when XLA_FLAGS forces a count, and on accelerators)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the previous sweep in --out (removes gsjax's sweep outputs there, nothing else)")
     p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk (default 8)")
@@ -551,7 +552,7 @@ def _cmd_sweep(args) -> int:
                            eval_every=args.eval_every,
                            progress=not args.no_progress, overwrite=args.overwrite)
     check_run_dir(args.out, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
-    request_cpu_devices(args.devices or min(available_cores(), batch_size(args.batch, configs)))
+    request_cpu_devices(args.devices or min(max(1, available_cores() // 2), batch_size(args.batch, configs)))
     maybe_initialize_distributed()
     (sequence, factor), input_warnings = _dataset_warnings(lambda: _open_run_sequence(args))
     describe = _describe(args, sequence, factor)

@@ -124,6 +124,15 @@ def _checkpoint_summary(ledger: dict | None) -> dict | None:
                 last_bytes=ledger["bytes_last"], max_bytes=ledger["bytes_max"])
 
 
+# Module-level jits: a sweep's configs (and a process's runs) share one traced and compiled program each.
+_eval_render = jax.jit(render)
+
+
+@jax.jit
+def _cbknn_stats(gaussians, w2c, intrinsics, settings, params, motion):
+    return render(gaussians, w2c, intrinsics, settings, cbknn=params, motion=motion).stats.cbknn
+
+
 def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: SlamState,
                     outputs: dict) -> tuple[dict, dict | None]:
     """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0, except frames
@@ -139,19 +148,15 @@ def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: Sl
     if not frames:
         return dict(frames=[], mean=None, per_frame=[]), None
     samples = set(np.unique(np.linspace(0, len(frames) - 1, min(options.samples, len(frames))).round().astype(int)))
-    render_fn = jax.jit(lambda g, w: render(g, w, sequence.intrinsics, config.raster))
     smoothing = config.cbknn.smooth_renders
-    if smoothing:
-        params = config.cbknn.params
-        smoothed_fn = jax.jit(lambda g, w, m: render(g, w, sequence.intrinsics, config.raster, cbknn=params,
-                                                     motion=m).stats.cbknn)
+    params = config.cbknn.params
     per_frame, diagnostics = [], []
     renders = Path(options.out) / "renders"
     renders.mkdir(parents=True, exist_ok=True)
     for position, t in enumerate(frames):
         frame = sequence.read_host(t)
         w2c = jnp.asarray(outputs["w2c"][t], jnp.float32)
-        out = render_fn(state.gaussians, w2c)
+        out = _eval_render(state.gaussians, w2c, sequence.intrinsics, config.raster)
         values = render_metrics_splatam(out.color, out.depth, jnp.asarray(frame.color), jnp.asarray(frame.depth))
         per_frame.append({k: float(v) for k, v in values.items()})
         if position not in samples:
@@ -160,7 +165,8 @@ def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: Sl
         save_rgb_png(renders / f"frame_{t:06d}.png", panel)
         if smoothing:
             gamma = float(outputs["gamma"][t])
-            stats = jax.device_get(smoothed_fn(state.gaussians, w2c, jnp.float32(gamma)))
+            stats = jax.device_get(_cbknn_stats(state.gaussians, w2c, sequence.intrinsics, config.raster, params,
+                                                jnp.float32(gamma)))
             diagnostics.append(_cbknn_sample(stats, t, gamma, params.cell, renders / f"cbknn_{t:06d}.png"))
     mean = {k: float(np.mean([p[k] for p in per_frame])) for k in per_frame[0]}
     render_metrics = dict(frames=frames, mean=dict(mean, depth_l1_cm=100 * mean["depth_l1_m"]), per_frame=per_frame)

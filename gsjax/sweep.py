@@ -138,7 +138,11 @@ def request_cpu_devices(count: int) -> int:
     different devices run at the same time (one per core: XLA:CPU keeps one SLAM step on about one core). Returns
     the count asked for, or 0 when it could not be changed: ``XLA_FLAGS`` already forces a count, or the backend is
     already up (an in-process caller keeps the devices it has). Accelerator runs are unaffected (their devices form
-    the mesh)."""
+    the mesh).
+
+    XLA:CPU compiles a program once per device (the device is part of its persistent-cache key), and one SLAM
+    program already keeps about 1.3 cores busy (its ops and its compilation are multi-threaded): measured on 2
+    cores, 2 devices ran 4 configs 9 % faster than 1 with a warm cache, and compiled twice with a cold one."""
     if count < 1 or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
         return 0
     try:

@@ -75,7 +75,9 @@ MODES = {"off": (lambda: config(), 0.1), "paper": (lambda: with_cbknn_mode(confi
 
 
 @pytest.mark.parametrize("mode", list(MODES))
-@pytest.mark.parametrize("axis", ["tx", "tz", "rx", "rz"])
+# tz and rz (8-9 s each per mode) in the slow suite: a translation and a rotation axis stay in the default one.
+@pytest.mark.parametrize("axis", ["tx", pytest.param("tz", marks=pytest.mark.slow), "rx",
+                                  pytest.param("rz", marks=pytest.mark.slow)])
 def test_landscape_gradients_agree_with_finite_differences_of_its_loss(mode, axis):
     """The gradient holds the tracking mask fixed (``stop_gradient``), and CB-KNN's neighbour selection is discrete,
     so the loss has small jumps where a pixel enters the mask or a neighbour set changes (in ``paper`` mode, local

@@ -180,7 +180,8 @@ def test_pallas_render_equals_the_xla_render_and_the_float64_reference(name):
 @pytest.mark.parametrize(
     "name, overrides",
     [("heavy_overlap", dict(max_contributors=8)), ("dense_surface", dict(max_contributors=16)),
-     ("heavy_overlap", dict(tile_size=16, tile_capacity=16)), ("dense_surface", dict(tile_capacity=64))],
+     ("heavy_overlap", dict(tile_size=16, tile_capacity=16)),
+     pytest.param("dense_surface", dict(tile_capacity=64), marks=pytest.mark.slow)],  # 8 s; tile lists: the above
 )
 def test_truncation_is_reported_the_same_way(name, overrides):
     xla, pallas = both(name, **overrides)
@@ -240,8 +241,10 @@ def assert_same_gradients(a, b, label):
         assert np.abs(x - y).max() <= GRAD_TOL * scale, f"{label}: {field} rel {np.abs(x - y).max() / scale:.2e}"
 
 
+# 9-11 s each: truncate_fraction's gradient in the slow suite (its render and statistics are compared above).
 @pytest.mark.parametrize("name, case", [("dense_surface", None), ("dense_surface", "adaptive"),
-                                        ("dense_surface", "truncate_fraction"), ("sparse_random", None)])
+                                        pytest.param("dense_surface", "truncate_fraction", marks=pytest.mark.slow),
+                                        ("sparse_random", None)])
 def test_gradients_are_the_same_on_both_backends(name, case):
     cb = None if case is None else CBKNN(**CBKNN_CASES[case])
     xla = gradients(name, settings(backend="xla"), cb)

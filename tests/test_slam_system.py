@@ -110,7 +110,7 @@ def stack(a, b):
     return jax.tree_util.tree_map(lambda x, y: jnp.stack([jnp.asarray(x), jnp.asarray(y)]), a, b)
 
 
-@pytest.mark.parametrize("mode", ["off", "paper"])
+@pytest.mark.parametrize("mode", ["off", pytest.param("paper", marks=pytest.mark.slow)])  # paper: 45-55 s
 def test_vmap_over_configs_and_states_equals_the_separate_runs(mode):
     """One program over a batch of two configs (traced fields differ) and two initial states (seeds differ); in
     ``paper`` mode CB-KNN acts on keyframe 0's densification and mapping and on the alpha that differs."""

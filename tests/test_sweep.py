@@ -223,7 +223,9 @@ def test_a_sweep_over_two_processes_gives_the_rows_of_one_process_and_only_proce
     own --out, which must stay absent."""
     env = dict(os.environ, GSJAX_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{_free_port()}",
                GSJAX_NUM_PROCESSES="2")
-    env.pop("XLA_FLAGS", None)
+    # The suite's own XLA flags stay (compiled as the one-process sweep was); a forced device count does not.
+    env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split()
+                                if "xla_force_host_platform_device_count" not in f)
     code = "import sys; from gsjax.cli import main; sys.exit(main(sys.argv[1:]))"
     outs = [tmp_path / "p0", tmp_path / "p1"]
     procs = [subprocess.Popen([sys.executable, "-c", code, "sweep", "--out", str(outs[i]), *TINY_RUN, *GRID,
