@@ -536,8 +536,8 @@ def _add_sweep(sub) -> None:
 
 def _cmd_sweep(args) -> int:
     from gsjax.io.run_dir import SWEEP_OUTPUTS, check_run_dir
-    from gsjax.sweep import (SweepOptions, available_cores, batch_size, expand_grid, maybe_initialize_distributed,
-                             parse_grid, request_cpu_devices, run_sweep)
+    from gsjax.sweep import SweepOptions, batch_size, expand_grid, parse_grid, run_sweep
+    from gsjax.sweep_devices import default_cpu_devices, maybe_initialize_distributed, request_cpu_devices
 
     _quiet_logs()
     if args.seeds < 1:
@@ -552,7 +552,7 @@ def _cmd_sweep(args) -> int:
                            eval_every=args.eval_every,
                            progress=not args.no_progress, overwrite=args.overwrite)
     check_run_dir(args.out, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
-    request_cpu_devices(args.devices or min(max(1, available_cores() // 2), batch_size(args.batch, configs)))
+    request_cpu_devices(args.devices or default_cpu_devices(batch_size(args.batch, configs)))
     maybe_initialize_distributed()
     (sequence, factor), input_warnings = _dataset_warnings(lambda: _open_run_sequence(args))
     describe = _describe(args, sequence, factor)

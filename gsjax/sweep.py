@@ -8,11 +8,12 @@ time over the same frames (:func:`gsjax.slam.driver.batch_chunk_loop`, bounding 
 axis sharded over every device of a 1-D mesh. With V = 1 (the CPU default: XLA:CPU runs the vmapped scan slower
 per config than the plain one) each config is one call of the plain program, configs spread round-robin over the
 devices and dispatched together, and every row is bit for bit the separate ``gsjax run``. On CPU the CLI asks for
-one device per core (:func:`request_cpu_devices`), so that many configs run at the same time.
+one device per two cores (:func:`gsjax.sweep_devices.request_cpu_devices`), so that many configs run at once.
 
 Multi-host: start every process with the same command and ``GSJAX_DISTRIBUTED=1`` (see
-:func:`maybe_initialize_distributed`); the mesh then spans every process's devices. With V = 1 each process runs
-the configs of its own devices and the finished ones are gathered (:func:`share_results`); a stacked group is
+:func:`gsjax.sweep_devices.maybe_initialize_distributed`); the mesh then spans every process's devices. With V = 1
+each process runs the configs of its own devices and the finished ones are gathered
+(:func:`gsjax.sweep_devices.share_results`); a stacked group is
 sharded over the processes and gathered after each chunk. Process 0 writes every output; the others write nothing.
 Tested with two processes on one machine.
 
@@ -28,8 +29,6 @@ import dataclasses
 import io
 import itertools
 import math
-import os
-import pickle
 import time
 from pathlib import Path
 
@@ -44,6 +43,7 @@ from gsjax.progress import Progress
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import Group, batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
 from gsjax.slam.state import initial_state, keyframe_capacity_for
+from gsjax.sweep_devices import batch_mesh, place_batch, share_results, to_host
 
 CSV_METRICS = ("seed", "ate_rmse_cm", "ate_splatam_cm", "psnr_db", "depth_l1_cm", "seconds", "run")
 
@@ -109,75 +109,7 @@ def static_fields(base: SlamConfig, axes: list[GridAxis]) -> list[str]:
             if len({static_key(apply_overrides(base, {axis.field: v})) for v in axis.values}) > 1]
 
 
-# ------------------------------------------------------------------------------------------ devices
-
-
-def maybe_initialize_distributed() -> None:
-    """``jax.distributed.initialize()`` when ``GSJAX_DISTRIBUTED=1``. The coordinator, process count and id come from
-    ``JAX_COORDINATOR_ADDRESS`` (host:port), ``GSJAX_NUM_PROCESSES`` and ``GSJAX_PROCESS_ID`` where set, else from
-    the cluster's environment (e.g. SLURM, Open MPI) as JAX detects it."""
-    if os.environ.get("GSJAX_DISTRIBUTED") != "1":
-        return
-    given = {name: os.environ.get(f"GSJAX_{name.upper()}") for name in ("num_processes", "process_id")}
-    try:
-        jax.distributed.initialize(**{name: int(value) for name, value in given.items() if value is not None})
-    except ValueError as err:
-        raise ValueError(f"GSJAX_DISTRIBUTED=1: cannot start the distributed runtime: {err}") from None
-
-
-def available_cores() -> int:
-    """CPU cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
-
-
-def request_cpu_devices(count: int) -> int:
-    """Ask JAX for ``count`` CPU devices before its backend starts, so that single-config programs placed on
-    different devices run at the same time (one per core: XLA:CPU keeps one SLAM step on about one core). Returns
-    the count asked for, or 0 when it could not be changed: ``XLA_FLAGS`` already forces a count, or the backend is
-    already up (an in-process caller keeps the devices it has). Accelerator runs are unaffected (their devices form
-    the mesh).
-
-    XLA:CPU compiles a program once per device (the device is part of its persistent-cache key), and one SLAM
-    program already keeps about 1.3 cores busy (its ops and its compilation are multi-threaded): measured on 2
-    cores, 2 devices ran 4 configs 9 % faster than 1 with a warm cache, and compiled twice with a cold one."""
-    if count < 1 or "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
-        return 0
-    try:
-        jax.config.update("jax_num_cpu_devices", count)
-    except RuntimeError:  # the backend is initialised already
-        return 0
-    return count
-
-
-def batch_mesh():
-    """A 1-D mesh named ``batch`` over every device (all processes)."""
-    return jax.sharding.Mesh(np.asarray(jax.devices()), ("batch",))
-
-
-def place_batch(tree, mesh):
-    """A batched tree laid out along its leading axis over ``mesh`` (each process fills its own shards)."""
-    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
-
-    def put(x):
-        x = np.asarray(x)
-        return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
-
-    return jax.tree_util.tree_map(put, tree)
-
-
-def to_host(tree):
-    """A tree as numpy; an array sharded over several processes is gathered to every process (each must call)."""
-    from jax.experimental import multihost_utils
-
-    def get(x):
-        if isinstance(x, jax.Array) and not x.is_fully_addressable:
-            return np.asarray(multihost_utils.process_allgather(x, tiled=True))
-        return jax.device_get(x)
-
-    return jax.tree_util.tree_map(get, tree)
+# ------------------------------------------------------------------------------------------ batches and placement
 
 
 def batch_size(requested: int | None, configs: int) -> int:
@@ -232,26 +164,6 @@ def _per_config(groups, members, parts, final_states, count):
     return out
 
 
-def share_results(per_config: list) -> list:
-    """Every process's entries of ``per_config`` (None where another process ran the config) on every process, as
-    numpy: each process pickles its own and all-gathers the bytes. One process: returned as given."""
-    if jax.process_count() == 1:
-        return per_config
-    from jax.experimental import multihost_utils
-
-    mine = {i: jax.device_get(entry) for i, entry in enumerate(per_config) if entry is not None}
-    blob = np.frombuffer(pickle.dumps(mine), np.uint8)
-    sizes = np.asarray(multihost_utils.process_allgather(np.array([blob.size], np.int64))).reshape(-1)
-    padded = np.zeros(int(sizes.max()), np.uint8)
-    padded[:blob.size] = blob
-    blobs = np.asarray(multihost_utils.process_allgather(padded))
-    shared = list(per_config)
-    for process, size in enumerate(sizes):
-        for i, entry in pickle.loads(blobs[process, :size].tobytes()).items():
-            shared[i] = shared[i] if shared[i] is not None else entry
-    return shared
-
-
 # ------------------------------------------------------------------------------------------ the sweep
 
 
@@ -291,9 +203,9 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
     if writer:
         check_run_dir(out, overwrite=options.overwrite, outputs=SWEEP_OUTPUTS)
     sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
-    if writer and options.overwrite:
-        clear_previous_run(out, SWEEP_OUTPUTS)
     if writer:
+        if options.overwrite:
+            clear_previous_run(out, SWEEP_OUTPUTS)
         out.mkdir(parents=True, exist_ok=True)
     k = sequence.intrinsics
     height, width_px, total = k.height, k.width, len(sequence)
@@ -364,7 +276,8 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
                                             RunOptions(out=run_dir, chunk=options.chunk, seed=point.seed,
                                                        eval_every=options.eval_every, samples=options.samples,
                                                        progress=False),
-                                            jax.device_get(state), run_outputs, run_timings, record, list(input_warnings))
+                                            jax.device_get(state), run_outputs, run_timings, record,
+                                            list(input_warnings))
                     rows.append(_row(point, metrics, seconds, run_dir.relative_to(out)))
             timings["outputs_s"] += time.perf_counter() - t0
     finally:
