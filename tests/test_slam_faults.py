@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import constant_velocity, orthonormalize, se3_exp
 from gsjax.config_text import apply_overrides
 from gsjax.slam.system import run_chunk
-from gsjax.slam.tracking import within_step_bound
+from gsjax.slam.tracking import track, track_guarded, within_step_bound
 from slam_fixtures import CHUNK, FRAMES, all_finite, assert_trees_equal, frames, initial, tiny_config, tiny_sequence
 
 
@@ -112,3 +113,28 @@ def test_a_loss_jump_is_retried_and_keeps_the_lower_loss():
     assert float(out.tracking_loss[2]) <= float(plain.tracking_loss[2])
     assert int(state.retried_frames) == FRAMES - 2
 
+
+
+def test_the_retry_is_the_tracker_again_with_its_steps_scaled_and_the_lower_loss_wins():
+    """``track_guarded`` with a forced retry (a tiny previous loss) equals two plain ``track`` calls, the second
+    with both step sizes times ``retry_lr_scale``: the pose of the lower loss, both attempts' iterations. (A scale
+    above 1 here, so that the second attempt wins at 3 iterations.)"""
+    config = apply_overrides(tiny_config(), {"tracking.retry_lr_scale": "2"})
+    state, _ = scan(frames(0, CHUNK), config)
+    frame = frames(CHUNK, CHUNK + 1)
+    cfg = config.tracking
+    slower = dataclasses.replace(config, tracking=dataclasses.replace(cfg, lr_trans=cfg.lr_trans * 2,
+                                                                      lr_rot=cfg.lr_rot * 2))
+    args = (state.gaussians, frame.color[0], frame.depth[0], state.w2c_prev1, tiny_sequence().intrinsics)
+
+    @jax.jit
+    def attempts(config, slower):
+        guarded = track_guarded(*args, config, False, 0.0, jnp.float32(1e-9))
+        return guarded, track(*args, config, False, 0.0), track(*args, slower, False, 0.0)
+
+    guarded, first, second = attempts(config, slower)
+    assert bool(guarded.retried) and not bool(guarded.diverged)
+    assert float(second.loss) < float(first.loss)
+    np.testing.assert_array_equal(np.asarray(guarded.w2c), np.asarray(second.w2c))
+    assert float(guarded.loss) == float(second.loss)
+    assert int(guarded.iterations) == int(first.iterations) + int(second.iterations)

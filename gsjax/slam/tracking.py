@@ -248,17 +248,29 @@ def track_guarded(
     ``cond`` would run both sides).
     """
     cfg = config.tracking
-    first = track(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
-    retry = _diverged(first, w2c_init, previous_loss, config)
     if cfg.optimizer == "adam":
-        slower = dataclasses.replace(config, tracking=dataclasses.replace(
-            cfg, lr_trans=cfg.lr_trans * cfg.retry_lr_scale, lr_rot=cfg.lr_rot * cfg.retry_lr_scale))
+        # Both attempts are one traced tracker in a loop (the second with smaller steps), so the compiled program
+        # holds the tracker once.
+        def attempt(carry):
+            number, first, _ = carry
+            scale = jnp.where(number == 0, 1.0, cfg.retry_lr_scale)
+            scaled = dataclasses.replace(config, tracking=dataclasses.replace(
+                cfg, lr_trans=cfg.lr_trans * scale, lr_rot=cfg.lr_rot * scale))
+            result = track(gaussians, color, depth, w2c_init, intrinsics, scaled, smooth, gamma)
+            first = jax.tree.map(lambda new, old: jnp.where(number == 0, new, old), result, first)
+            return number + 1, first, result
 
-        def again(carry):
-            return jnp.bool_(False), track(gaussians, color, depth, w2c_init, intrinsics, slower, smooth, gamma)
+        def another(carry):
+            number, first, _ = carry
+            return (number == 0) | ((number == 1) & _diverged(first, w2c_init, previous_loss, config))
 
-        _, second = jax.lax.while_loop(lambda carry: carry[0], again, (retry, first))
+        zeros = jax.tree.map(jnp.zeros_like, jax.eval_shape(
+            lambda: track(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)))
+        _, first, second = jax.lax.while_loop(another, attempt, (jnp.int32(0), zeros, zeros))
+        retry = _diverged(first, w2c_init, previous_loss, config)
     else:
+        first = track(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
+        retry = _diverged(first, w2c_init, previous_loss, config)
         second = first
     ok_first = within_step_bound(first.w2c, w2c_init, config)
     ok_second = within_step_bound(second.w2c, w2c_init, config)
