@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo -n)
 APT    := DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get -y -q
 
-.PHONY: install chromium demo test test-slow bench clean
+.PHONY: install chromium demo lint test test-slow bench clean
 
 install: $(STAMP)
 
@@ -34,8 +34,12 @@ demo: install
 # at a time so its module fixtures are built once; TEST_WORKERS=0: one process). (LLVM at -O0 compiled 25 % faster
 # but broke the bitwise CB-KNN-equals-canonical tests: not used.)
 TEST_WORKERS ?= 2
-test: install chromium
+test: install chromium lint
 	$(BIN)/python -m pytest -q -m "not slow" $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile) tests
+
+# ruff (configured in pyproject.toml); `make test` runs it first.
+lint: install
+	$(BIN)/ruff check .
 
 test-slow: install
 	$(BIN)/python -m pytest -q -m slow tests

@@ -13,9 +13,9 @@ import argparse
 import jax
 import jax.numpy as jnp
 
-from gsjax.bench import median_seconds, weighted_outputs
-from gsjax.data.room import dense_surface_map
+from gsjax.app.bench import median_seconds, weighted_outputs
 from gsjax.camera import se3_exp
+from gsjax.data.room import dense_surface_map
 from gsjax.gaussians import Gaussians
 from gsjax.raster import RasterSettings, render
 from gsjax.raster.cbknn import CBKNN
@@ -45,7 +45,8 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     print(f"backend={jax.default_backend()} variant={args.variant} settings={RasterSettings()}")
     print(f"CB-KNN: {CBKNN()} motion=0.5; median of {args.repeats} runs after warm-up")
-    print(f"{'size':>8s} | {'fwd ms':>8s} {'cbknn':>8s} {'ratio':>6s} | {'fwd+bwd ms':>10s} {'cbknn':>8s} {'ratio':>6s}")
+    print(f"{'size':>8s} | {'fwd ms':>8s} {'cbknn':>8s} {'ratio':>6s} | "
+          f"{'fwd+bwd ms':>10s} {'cbknn':>8s} {'ratio':>6s}")
     for size in args.sizes.split(","):
         width, height = (int(x) for x in size.split("x"))
         base_f, base_fb = bench(width, height, args.variant, None, args.repeats)

@@ -18,7 +18,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from gsjax.bench import _peak_mib, bench_map, parse_size
+from gsjax.app.bench import _peak_mib, bench_map, parse_size
 from gsjax.gaussians import Gaussians
 from gsjax.raster import RasterSettings
 from gsjax.slam.config import SlamConfig

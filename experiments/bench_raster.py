@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.bench import weighted_outputs
+from gsjax.app.bench import weighted_outputs
 from gsjax.data.room import dense_surface_map
 from gsjax.raster import RasterSettings, render
 from gsjax.raster.binning import TileGrid, bin_gaussians
@@ -101,8 +101,8 @@ def main(argv=None) -> None:
     print(f"backend={jax.default_backend()} devices={jax.devices()} variant={args.variant} settings={settings}")
     print(f"median of {args.repeats} runs after one warm-up run; fwd+bwd = value_and_grad w.r.t. all fields + pose; "
           "pose_fwd_bwd = w.r.t. the pose only (tracking)")
-    cols = ["size", "gaussians", "mean_list", "longest", "k", "compile_s", "fwd_ms", "fwd_bwd_ms", "ns_per_px_cand", "pose_fwd_bwd_ms",
-            "truncated_px", "max_contrib", "peak_rss_mb"]
+    cols = ["size", "gaussians", "mean_list", "longest", "k", "compile_s", "fwd_ms", "fwd_bwd_ms", "ns_per_px_cand",
+            "pose_fwd_bwd_ms", "truncated_px", "max_contrib", "peak_rss_mb"]
     print(" | ".join(f"{c:>12s}" for c in cols))
     for size in args.sizes.split(","):
         width, height = (int(x) for x in size.split("x"))

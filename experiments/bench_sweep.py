@@ -26,7 +26,7 @@ K0S = ("4", "8")
 def _gsjax(argv: list[str], cache: Path) -> float:
     env = dict(os.environ, GSJAX_CACHE_DIR=str(cache))
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "gsjax.cli", *argv], env=env, check=True, stdout=subprocess.DEVNULL,
+    subprocess.run([sys.executable, "-m", "gsjax", *argv], env=env, check=True, stdout=subprocess.DEVNULL,
                    stderr=subprocess.DEVNULL)
     return time.perf_counter() - t0
 
@@ -64,7 +64,8 @@ def main() -> None:
             separate_s = sum(r["wall_s"] for r in separate)
             results["passes"][cache_state] = dict(
                 sweep_wall_s=sweep_s, sweep_slam_s=summary["timings"]["slam_s"],
-                sweep_first_chunk_s=summary["timings"]["first_chunk_s"], sweep_outputs_s=summary["timings"]["outputs_s"],
+                sweep_first_chunk_s=summary["timings"]["first_chunk_s"],
+                sweep_outputs_s=summary["timings"]["outputs_s"],
                 separate_wall_s=separate_s, separate_slam_s=sum(r["slam_s"] for r in separate),
                 separate_outputs_s=sum(r["outputs_s"] for r in separate), separate=separate,
                 ratio=sweep_s / separate_s)

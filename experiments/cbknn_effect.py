@@ -19,14 +19,14 @@ import jax.numpy as jnp
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from gsjax.camera import se3_inverse  # noqa: E402
-from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence  # noqa: E402
-from gsjax.gaussians import Gaussians, gaussians_from_rgbd  # noqa: E402
-from gsjax.raster import RasterSettings, render  # noqa: E402
-from gsjax.raster.cbknn import CBKNN  # noqa: E402
+from gsjax.camera import se3_inverse
+from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+from gsjax.gaussians import Gaussians, gaussians_from_rgbd
+from gsjax.raster import RasterSettings, render
+from gsjax.raster.cbknn import CBKNN
 
 
 def noisy_map(seed: int = 0):

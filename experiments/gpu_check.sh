@@ -55,10 +55,10 @@ step() {  # step NAME TIMEOUT_S COMMAND...: run with a time limit, record status
 }
 rm -f "$OUT/steps.jsonl"
 GSJAX_GPU_REPORT="$OUT/tests.jsonl" step tests 120 "$PY" -m pytest -q -p no:cacheprovider tests/test_gpu.py
-step bench 180 "$PY" -m gsjax.cli bench --backend xla,pallas --sizes "$SIZES" --repeats 5 \
+step bench 180 "$PY" -m gsjax bench --backend xla,pallas --sizes "$SIZES" --repeats 5 \
     --out "$OUT/bench.json"
 if [ -d .gpu_data/7scenes ]; then
-    step run 150 "$PY" -m gsjax.cli run --dataset 7scenes --path .gpu_data/7scenes --preset replica \
+    step run 150 "$PY" -m gsjax run --dataset 7scenes --path .gpu_data/7scenes --preset replica \
         --max-frames "$RUN_FRAMES" --out "$OUT/run" --overwrite --no-progress $RUN_EXTRA
 else
     echo '{"step": "run", "status": "skipped: no .gpu_data/7scenes (bash experiments/gpu_check.sh --prepare)"}' \

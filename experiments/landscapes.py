@@ -3,8 +3,9 @@
     python experiments/landscapes.py --work /tmp/gsjax_landscapes --frames 10,25,40 --axes tx,tz,ry
 
 Each frame is one `gsjax landscape` (map from SLAM over the frames before it, or with ``--map-from gt`` at their GT
-poses; reference = the GT pose). Writes ``experiments/results/landscapes.csv`` (``landscapes_gt.csv`` for GT maps) (per frame, axis and mode: basin width, loss and |gradient| at the grid's
-ends, the loss's minimum offset) and ``landscapes.png`` (every frame's loss curves, normalised per frame).
+poses; reference = the GT pose). Writes ``experiments/results/landscapes.csv`` (``landscapes_gt.csv`` for GT maps;
+per frame, axis and mode: basin width, loss and |gradient| at the grid's ends, the loss's minimum offset) and
+``landscapes.png`` (every frame's loss curves, normalised per frame).
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
 from studies import RESULTS, ROOT, SEQUENCES, write_result_csv
 
 
@@ -36,7 +36,7 @@ def main() -> None:
     commands, docs = [], {}
     for frame in [int(f) for f in args.frames.split(",")]:
         out = args.work / f"{args.sequence}_frame{frame:04d}{suffix}"
-        command = [sys.executable, "-m", "gsjax.cli", "landscape", "--out", str(out), *SEQUENCES[args.sequence],
+        command = [sys.executable, "-m", "gsjax", "landscape", "--out", str(out), *SEQUENCES[args.sequence],
                    "--frame", str(frame), "--axes", args.axes, "--steps", args.steps, "--extent-cm", args.extent_cm,
                    "--extent-deg", args.extent_deg, "--map-from", args.map_from]
         commands.append("gsjax " + shlex.join(command[3:]))

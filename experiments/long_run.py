@@ -35,12 +35,12 @@ def long_run(frames: int, work: Path, downscale: int = 4, every: int = 100, chec
     """Run SLAM on ``frames`` synthetic frames into ``work`` (overwritten); return the measurement.
 
     ``overrides``: dotted config overrides (e.g. tiny iteration counts for a quick memory check)."""
-    from gsjax.compilation_cache import enable_compilation_cache
+    from gsjax.app import checkpoints as checkpoint
+    from gsjax.app.checkpoints import checkpoint_bytes
+    from gsjax.app.compilation_cache import enable_compilation_cache
+    from gsjax.app.runner import RunOptions, run_slam
     from gsjax.config_text import apply_overrides
     from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
-    from gsjax.io import checkpoint
-    from gsjax.io.checkpoint import checkpoint_bytes
-    from gsjax.runner import RunOptions, run_slam
     from gsjax.slam.presets import preset
 
     enable_compilation_cache()
@@ -89,7 +89,8 @@ def long_run(frames: int, work: Path, downscale: int = 4, every: int = 100, chec
                 marks=marks, checkpoints=saves, ate_cm=metrics["trajectory"]["ate_rmse_c2w_cm"],
                 constant_pose_cm=metrics["constant_pose_ate_rmse_c2w_cm"],
                 psnr_db=(metrics["render"]["mean"] or {}).get("psnr_db"),
-                capacity=metrics["capacity"], initial_capacity=2 * sequence.intrinsics.width * sequence.intrinsics.height,
+                capacity=metrics["capacity"],
+                initial_capacity=2 * sequence.intrinsics.width * sequence.intrinsics.height,
                 num_gaussians=metrics["num_gaussians"], retried_frames=counts["retried_frames"],
                 diverged_frames=counts["diverged_frames"], nonfinite_gaussians=counts["nonfinite_gaussians"],
                 seconds_per_frame=metrics["seconds_per_frame"], keyframes=metrics["keyframes"],

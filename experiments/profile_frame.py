@@ -219,7 +219,7 @@ def compare(sequence, config, frame_index: int, repeats: int, variants: dict) ->
 
 def host_stages(args, work: Path) -> dict:
     """Stage timings (s) of a real ``gsjax run`` of ``--run-frames`` frames (warm compile cache after the first)."""
-    from gsjax.cli import main
+    from gsjax.app.cli import main
 
     dataset = ["--dataset", "synthetic"] + (["--synthetic-noise"] if args.sequence == "synthetic_noisy" else [])
     if not args.sequence.startswith("synthetic"):
@@ -253,7 +253,7 @@ def main(argv=None) -> int:
     parser.add_argument("--compare", nargs="+", default=None, metavar="NAME:FIELD=V,...",
                         help="time the step and the tracker of these override sets side by side instead")
     args = parser.parse_args(argv)
-    from gsjax.compilation_cache import enable_compilation_cache
+    from gsjax.app.compilation_cache import enable_compilation_cache
 
     enable_compilation_cache()
     from gsjax.config_text import apply_overrides

@@ -15,8 +15,8 @@ import argparse
 
 import numpy as np
 
+from gsjax.app.compilation_cache import enable_compilation_cache
 from gsjax.data.room import dense_surface_map
-from gsjax.compilation_cache import enable_compilation_cache
 from gsjax.raster import RasterSettings, render
 
 VARIANTS = ("fresh", "mapped", "receding", "layered")

@@ -16,7 +16,6 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-
 from studies import RESULTS, SEQUENCES, mean_std, sweep, write_result_csv
 
 MAP_NOISE_CM = ("0", "1", "2")

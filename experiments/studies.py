@@ -31,7 +31,7 @@ SEQUENCES = {
 def sweep(work: Path, name: str, argv: list[str], log: list[str]) -> list[dict]:
     """Run ``gsjax sweep --out work/name argv`` unless it already finished there; its rows (strings)."""
     out = work / name
-    command = [sys.executable, "-m", "gsjax.cli", "sweep", "--out", str(out), "--no-progress", *argv]
+    command = [sys.executable, "-m", "gsjax", "sweep", "--out", str(out), "--no-progress", *argv]
     log.append("gsjax " + shlex.join(command[3:]))
     if not (out / "sweep.csv").is_file():
         if out.exists():

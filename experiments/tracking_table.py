@@ -73,7 +73,7 @@ def available(row: Row) -> bool:
 def run_row(row: Row, mode: str, work: Path) -> dict:
     """``gsjax run`` for ``row`` with CB-KNN ``mode`` into ``work/ROW_MODE`` (reusing a finished run) -> its
     metrics.json."""
-    from gsjax.cli import main
+    from gsjax.app.cli import main
 
     out = Path(work) / f"{row.name}_{mode}"
     argv = ["run", *row.flags, "--cbknn", mode, "--out", str(out), "--no-progress"]

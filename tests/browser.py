@@ -127,7 +127,7 @@ class Process:
 
     def __init__(self, args: list[str]):
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.popen = subprocess.Popen([sys.executable, "-m", "gsjax.cli", *args], stdout=subprocess.PIPE,
+        self.popen = subprocess.Popen([sys.executable, "-m", "gsjax", *args], stdout=subprocess.PIPE,
                                       stderr=subprocess.STDOUT, text=True, env=env)
         self.lines: list[str] = []
         self._queue: queue.Queue = queue.Queue()

@@ -3,7 +3,7 @@
 import jax
 import pytest
 
-from gsjax.compilation_cache import enable_compilation_cache
+from gsjax.app.compilation_cache import enable_compilation_cache
 
 enable_compilation_cache()
 # Start the backend now: an in-process `gsjax sweep` would otherwise choose this process's CPU device count.

@@ -25,13 +25,14 @@ KILL_EXIT = -signal.SIGKILL  # the return code a subprocess killed this way repo
 
 
 def main(trace: str, kill_at: str, argv: list[str]) -> int:
-    import gsjax.cli
-    import gsjax.io.atomic as atomic
-    import gsjax.io.checkpoint  # noqa: F401 (imported so its reference to the writer is patched too)
-    import gsjax.run_outputs  # noqa: F401
-    import gsjax.runner  # noqa: F401
-    import gsjax.slam.driver as driver
     from orbax.checkpoint._src.path import async_path
+
+    import gsjax.app.checkpoints
+    import gsjax.app.cli
+    import gsjax.app.run_outputs
+    import gsjax.app.runner
+    import gsjax.io.atomic as atomic
+    import gsjax.slam.driver as driver
 
     log = open(trace, "a", buffering=1)
 
@@ -78,7 +79,7 @@ def main(trace: str, kill_at: str, argv: list[str]) -> int:
         return original_pad(frames, size)
 
     driver.pad_chunk = traced_pad
-    return gsjax.cli.main(argv)
+    return gsjax.app.cli.main(argv)
 
 
 if __name__ == "__main__":

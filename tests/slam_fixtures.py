@@ -15,10 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsjax.config_text import apply_overrides
 from gsjax.data.frame import Frame, stack_frames, to_device
 from gsjax.data.sequence import Sequence
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
-from gsjax.config_text import apply_overrides
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.presets import preset, with_cbknn_mode
 from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from data_fixtures import write_sevenscenes
-from gsjax.cli import main
+from gsjax.app.cli import main
 from gsjax.data import DatasetError, write_tum
 from slam_fixtures import CHUNK, FRAMES, HEIGHT, TINY_OVERRIDES, WIDTH, tiny_sequence
 

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from gsjax.bench import COLUMNS, bench_map
-from gsjax.cli import main
+from gsjax.app.bench import COLUMNS, bench_map
+from gsjax.app.cli import main
 
 
 def test_bench_measures_both_backends_and_writes_the_json(tmp_path, capsys):

@@ -169,7 +169,8 @@ def test_cbknn_render_matches_the_float64_reference(name, case):
 
 def assert_tightly_within_tolerance(label, errs):
     for field, (max_err, mean_err) in errs.items():
-        assert max_err <= TIGHT_MAX and mean_err <= TIGHT_MEAN, f"{label}: {field} max {max_err:.2e} mean {mean_err:.2e}"
+        assert max_err <= TIGHT_MAX and mean_err <= TIGHT_MEAN, (
+            f"{label}: {field} max {max_err:.2e} mean {mean_err:.2e}")
 
 
 def test_a_slot_whose_shifted_alpha_falls_below_the_threshold_is_still_composited():

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from gsjax.cli import main
+from gsjax.app.cli import main
 from gsjax.data import open_sequence
 
 

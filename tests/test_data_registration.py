@@ -22,7 +22,8 @@ PLANE_Z = 2.0
 
 def texture(x, y):
     """Smooth RGB texture on the plane (x, y in m) -> [..., 3] in [0.1, 0.9]."""
-    return np.stack([0.5 + 0.4 * np.sin(7 * x) * np.cos(5 * y), 0.5 + 0.4 * np.cos(6 * x + 1), 0.5 + 0.4 * np.sin(9 * y)],
+    return np.stack([0.5 + 0.4 * np.sin(7 * x) * np.cos(5 * y), 0.5 + 0.4 * np.cos(6 * x + 1),
+                     0.5 + 0.4 * np.sin(9 * y)],
                     axis=-1)
 
 

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from gsjax.camera import backproject, make_intrinsics
-from gsjax.data import SyntheticConfig, open_sequence, synthetic_sequence, write_tum
-from gsjax.data import scene
+from gsjax.data import SyntheticConfig, open_sequence, scene, synthetic_sequence, write_tum
 from gsjax.data.synthetic import camera_trajectory, depth_edges, render_frame, render_view
 
 SMALL = SyntheticConfig(width=64, height=48, num_frames=6)

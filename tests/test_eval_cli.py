@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from data_fixtures import shared_data, tiny_scene, write_replica, write_scannet, write_sevenscenes, write_tum_by_hand
-from gsjax.cli import DATASETS, main
+from gsjax.app.cli import main
 from gsjax.data import READERS
 from gsjax.eval.trajectory import evaluate_trajectory
 from gsjax.io.trajectory import read_tum_trajectory, write_tum_trajectory
+from gsjax.names import DATASETS
 
 
 def make_files(tmp_path, n=40):

@@ -26,7 +26,6 @@ from gsjax.eval.trajectory import (
 from gsjax.io.trajectory import quaternion_wxyz_to_rotation
 
 
-
 def random_rotation(rng, n=None):
     q = rng.standard_normal((4,) if n is None else (n, 4))
     return quaternion_wxyz_to_rotation(q / np.linalg.norm(q, axis=-1, keepdims=True))
@@ -361,8 +360,9 @@ def test_evaluate_trajectory_per_frame_errors_are_the_ones_behind_the_statistics
     assert per_frame["est_index"] == [i for i in range(40) if gt_valid[i]]
     assert np.sqrt(np.mean(np.square(per_frame["ate_c2w_m"]))) == pytest.approx(metrics["ate_rmse_c2w_m"], rel=1e-12)
     assert per_frame["rpe_est_index"] == [i + 1 for i in range(39) if gt_valid[i] and gt_valid[i + 1]]
-    assert np.sqrt(np.mean(np.square(per_frame["rpe_trans_m"]))) == pytest.approx(metrics["rpe_trans_rmse_m"], rel=1e-12)
-    assert np.sqrt(np.mean(np.square(per_frame["rpe_rot_deg"]))) == pytest.approx(metrics["rpe_rot_rmse_deg"], rel=1e-12)
+    rms = lambda values: np.sqrt(np.mean(np.square(values)))  # noqa: E731
+    assert rms(per_frame["rpe_trans_m"]) == pytest.approx(metrics["rpe_trans_rmse_m"], rel=1e-12)
+    assert rms(per_frame["rpe_rot_deg"]) == pytest.approx(metrics["rpe_rot_rmse_deg"], rel=1e-12)
 
 
 def test_ground_truth_on_estimate_starts_at_the_estimates_pose_and_keeps_the_relative_motion():

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsjax.bench import bench_map, weighted_outputs
+from gsjax.app.bench import bench_map, weighted_outputs
 from gsjax.camera import se3_exp
 from gsjax.gaussians import Gaussians
 from gsjax.raster import RasterSettings, render

@@ -7,8 +7,17 @@ import matplotlib
 import numpy as np
 import pytest
 
-from gsjax.io.images import (COLOR_ERROR_RANGE, DEPTH_ERROR_RANGE_M, LABEL_HEIGHT, colorize_depth, colorize_error,
-                             render_panel, save_color_png, save_depth_png, to_uint8)
+from gsjax.io.images import (
+    COLOR_ERROR_RANGE,
+    DEPTH_ERROR_RANGE_M,
+    LABEL_HEIGHT,
+    colorize_depth,
+    colorize_error,
+    render_panel,
+    save_color_png,
+    save_depth_png,
+    to_uint8,
+)
 from gsjax.io.plots import plot_errors_over_time, plot_trajectory_top_view, top_view_axes
 
 
@@ -68,7 +77,8 @@ def test_render_panel_lays_out_labelled_render_input_and_error_tiles_enlarged_to
     color_error = np.abs(render - inp).mean(axis=-1)
     assert (tile(0, 2) == colorize_error(color_error, COLOR_ERROR_RANGE)).all()
     assert tile(0, 2)[0, 0].tolist() == colorize_error(np.zeros((1, 1)), 1.0)[0, 0].tolist()
-    assert (tile(1, 0) == colorize_depth(depth, lo, hi)).all() and (tile(1, 1) == colorize_depth(depth_gt, lo, hi)).all()
+    assert (tile(1, 0) == colorize_depth(depth, lo, hi)).all()
+    assert (tile(1, 1) == colorize_depth(depth_gt, lo, hi)).all()
     assert (tile(1, 2) == colorize_error(np.abs(depth - depth_gt), DEPTH_ERROR_RANGE_M, depth_gt > 0)).all()
     assert tile(1, 2)[4, 6].tolist() == [0, 0, 0]
     for row in range(2):

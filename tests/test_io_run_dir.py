@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from gsjax.io.run_dir import RUN_OUTPUTS, RunDirError, check_run_dir, clear_previous_run
+from gsjax.app.run_dir import RUN_OUTPUTS, RunDirError, check_run_dir, clear_previous_run
 
 
 def previous_run(out):

@@ -11,13 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsjax.cli import main
+from gsjax.app.cli import main
 from gsjax.slam import landscape as pure
 from gsjax.slam.driver import run as slam_run
 from gsjax.slam.losses import rendered_depth, tracking_mask
-from gsjax.slam.presets import with_cbknn_mode
+from gsjax.slam.presets import preset, with_cbknn_mode
 from gsjax.slam.tracking import tracking_objective
-from gsjax.slam.presets import preset
 from slam_fixtures import CHUNK, FRAMES, relative_gt_w2c, tiny_sequence
 
 FRAME = 4

@@ -23,7 +23,6 @@ from gsjax.gaussians import Gaussians
 from raster_helpers import FIELDS, GRAD_SEED, REL_TOL, STEP, loss_weights, raster, settings, stats_dict
 
 
-
 def weighted_sum(images, weights) -> float:
     return sum(np.sum(np.asarray(getattr(images, k), np.float64) * w) for k, w in weights.items())
 

@@ -11,8 +11,8 @@ import pytest
 
 import reference_render as rr
 import scenes
-from gsjax.gaussians import Gaussians
 from gsjax.camera import make_intrinsics
+from gsjax.gaussians import Gaussians
 
 H, W = 32, 40
 FX, FY, CX, CY = 40.0, 30.0, 20.0, 16.0  # integer principal point: a centred Gaussian sits on pixel (16, 20)

@@ -14,13 +14,13 @@ import cv2
 import numpy as np
 import pytest
 
-from gsjax.cli import main
+from gsjax.app.cli import main
+from gsjax.app.runner import run_slam
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
 from gsjax.raster import render
 from gsjax.report import read_run, write_report
 from gsjax.report.page import HEADER
-from gsjax.runner import run_slam
 from slam_fixtures import FRAMES, tiny_config, tiny_sequence
 from test_slam_runner import options
 

@@ -8,11 +8,11 @@ import re
 import numpy as np
 import pytest
 
-from gsjax.cli import main
-from gsjax.io.checkpoint import Checkpoints
+from gsjax.app.checkpoints import Checkpoints
+from gsjax.app.cli import main
+from gsjax.config_text import config_to_dict
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
-from gsjax.config_text import config_to_dict
 from slam_fixtures import CHUNK, FRAMES, HEIGHT, TINY_OVERRIDES, WIDTH, tiny_config, tiny_sequence
 
 # --downscale 4 turns the default 160x120 synthetic room into 40x30; with these options the CLI builds exactly the

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from data_fixtures import shared_data
-from gsjax.cli import main
+from gsjax.app.checkpoints import Checkpoints
+from gsjax.app.cli import main
 from gsjax.data import open_sequence, write_tum
-from gsjax.io.checkpoint import Checkpoints
 from gsjax.io.trajectory import read_tum_trajectory
 from slam_fixtures import CHUNK, FRAMES, TINY_OVERRIDES, tiny_sequence
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from gsjax.slam.config import CBKNNConfig
-from gsjax.slam.presets import preset, with_cbknn_mode
 from gsjax.slam.keyframes import smooth_points
+from gsjax.slam.presets import preset, with_cbknn_mode
 from gsjax.slam.views import is_keyframe
 
 

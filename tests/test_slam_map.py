@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from gsjax.camera import se3_inverse
+from gsjax.config_text import apply_overrides
 from gsjax.gaussians import Gaussians, gaussians_from_rgbd
 from gsjax.slam.densify import densify, insert, prune
-from gsjax.config_text import apply_overrides
 from gsjax.slam.losses import mapping_loss
 from gsjax.slam.state import grow_capacity
 from gsjax.slam.views import render_view

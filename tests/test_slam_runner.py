@@ -9,11 +9,11 @@ import shutil
 import numpy as np
 import pytest
 
-from gsjax.io.checkpoint import Checkpoints
+from gsjax.app.checkpoints import Checkpoints
+from gsjax.app.runner import RunOptions, run_slam
+from gsjax.config_text import apply_overrides
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
-from gsjax.runner import RunOptions, run_slam
-from gsjax.config_text import apply_overrides
 from slam_fixtures import CAPACITY, CHUNK, FRAMES, tiny_config, tiny_sequence
 
 OUTPUTS = ("trajectory.txt", "map.ply")
@@ -53,8 +53,8 @@ def assert_close_run(out, metrics, reference_out, reference_metrics):
     outputs, reference_outputs = saved_outputs(out), saved_outputs(reference_out)
     assert outputs.keys() == reference_outputs.keys()
     for name in outputs:
-        np.testing.assert_allclose(np.asarray(outputs[name], np.float64), np.asarray(reference_outputs[name], np.float64),
-                                   rtol=1e-4, atol=1e-5, err_msg=name)
+        np.testing.assert_allclose(np.asarray(outputs[name], np.float64),
+                                   np.asarray(reference_outputs[name], np.float64), rtol=1e-4, atol=1e-5, err_msg=name)
     for key in ("num_gaussians", "capacity", "keyframes", "nonfinite_tracking_iterations"):
         assert metrics[key] == reference_metrics[key], key
     ate, reference_ate = metrics["trajectory"]["ate_rmse_c2w_m"], reference_metrics["trajectory"]["ate_rmse_c2w_m"]
@@ -151,7 +151,7 @@ def test_frames_per_second_after_a_resume_covers_the_whole_run(tmp_path, interru
 
 
 def _checkpoint_meta(out):
-    from gsjax.io.checkpoint import Checkpoints
+    from gsjax.app.checkpoints import Checkpoints
 
     checkpoints = Checkpoints(out / "checkpoints")
     try:

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from gsjax.camera import constant_velocity, orthonormalize
-from gsjax.data.frame import without_ground_truth
 from gsjax.config_text import apply_overrides
+from gsjax.data.frame import without_ground_truth
 from gsjax.slam.system import run_chunk
 from slam_fixtures import (
     CHUNK,

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from gsjax.camera import se3_exp, se3_log
-from gsjax.raster import render
 from gsjax.config_text import apply_overrides
-from gsjax.slam.presets import with_cbknn_mode
+from gsjax.raster import render
 from gsjax.slam.losses import rendered_depth, tracking_loss
+from gsjax.slam.presets import with_cbknn_mode
 from gsjax.slam.tracking import _track_adam, track
 from gsjax.slam.views import render_view
 from slam_fixtures import first_frame_map, map_config, relative_gt_w2c, tiny_sequence

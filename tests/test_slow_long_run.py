@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-from long_run import long_run  # noqa: E402
+from long_run import long_run
 
 pytestmark = pytest.mark.slow
 FRAMES = 1000

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-import tracking_table  # noqa: E402
+import tracking_table
 
 pytestmark = pytest.mark.slow
 

@@ -14,10 +14,8 @@ import jax
 import numpy as np
 import pytest
 
-from gsjax.cli import main
-from gsjax.config_text import apply_overrides
-from gsjax.io.trajectory import read_tum_trajectory
-from gsjax.sweep import (
+from gsjax.app.cli import main
+from gsjax.app.sweep import (
     GridAxis,
     batch_size,
     expand_grid,
@@ -27,6 +25,8 @@ from gsjax.sweep import (
     static_fields,
     vmap_width,
 )
+from gsjax.config_text import apply_overrides
+from gsjax.io.trajectory import read_tum_trajectory
 from slam_fixtures import tiny_config
 from test_slam_cli import TINY_RUN
 
@@ -194,7 +194,7 @@ def test_the_vmapped_axis_is_sharded_over_two_host_devices_with_the_same_results
     """XLA_FLAGS forces two CPU devices: each vmapped group of 2 is split one config per device."""
     out = tmp_path / "sharded"
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
-    code = ("import sys, jax; from gsjax.cli import main; assert jax.device_count() == 2; "
+    code = ("import sys, jax; from gsjax.app.cli import main; assert jax.device_count() == 2; "
             "sys.exit(main(sys.argv[1:]))")
     done = subprocess.run([sys.executable, "-c", code, "sweep", "--out", str(out), *TINY_RUN, *GRID,
                            "--seeds", str(SEEDS), "--vmap-width", "2"], env=env, capture_output=True, text=True)
@@ -226,7 +226,7 @@ def test_a_sweep_over_two_processes_gives_the_rows_of_one_process_and_only_proce
     # The suite's own XLA flags stay (compiled as the one-process sweep was); a forced device count does not.
     env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split()
                                 if "xla_force_host_platform_device_count" not in f)
-    code = "import sys; from gsjax.cli import main; sys.exit(main(sys.argv[1:]))"
+    code = "import sys; from gsjax.app.cli import main; sys.exit(main(sys.argv[1:]))"
     outs = [tmp_path / "p0", tmp_path / "p1"]
     procs = [subprocess.Popen([sys.executable, "-c", code, "sweep", "--out", str(outs[i]), *TINY_RUN, *GRID,
                                "--seeds", str(SEEDS), "--devices", "1", "--vmap-width", width],

@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gsjax.cli import main
+from gsjax.app.cli import main
+from gsjax.app.runner import run_slam
 from gsjax.io.images import to_uint8
 from gsjax.io.ply import read_ply
 from gsjax.raster import render
-from gsjax.runner import run_slam
 from gsjax.viewer import open_run
 from gsjax.viewer.live import LiveViewer
 from slam_fixtures import FRAMES, relative_gt_w2c, tiny_config, tiny_sequence

@@ -22,7 +22,6 @@ from gsjax.data.poses import read_pose_files
 from gsjax.data.registration import ColorCamera
 from gsjax.data.sequence import Sequence
 
-
 # What a caller may give a reader instead of the dataset's own intrinsics: Intrinsics (native size), or the pinhole
 # values (fx, fy, cx, cy) in pixels at the size of the stored depth images (``gsjax run --intrinsics``).
 GivenIntrinsics = Intrinsics | tuple[float, float, float, float] | None

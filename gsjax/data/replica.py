@@ -15,8 +15,14 @@ import numpy as np
 
 from gsjax.camera import make_intrinsics
 from gsjax.data.frame import DatasetError
-from gsjax.data.listing import (FrameFiles, GivenIntrinsics, given_intrinsics, numbered_files, read_json_numbers,
-                                require_color_for_depth)
+from gsjax.data.listing import (
+    FrameFiles,
+    GivenIntrinsics,
+    given_intrinsics,
+    numbered_files,
+    read_json_numbers,
+    require_color_for_depth,
+)
 from gsjax.data.poses import read_pose_lines
 
 DEFAULT_CAMERA = {"w": 1200, "h": 680, "fx": 600.0, "fy": 600.0, "cx": 599.5, "cy": 339.5, "scale": 6553.5}

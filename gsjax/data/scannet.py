@@ -14,8 +14,15 @@ from pathlib import Path
 from gsjax.camera import Intrinsics
 from gsjax.data.frame import DatasetError
 from gsjax.data.images import image_size
-from gsjax.data.listing import (FrameFiles, GivenIntrinsics, files_per_frame, given_intrinsics, intrinsics_from_matrix,
-                                numbered_files, require_color_for_depth)
+from gsjax.data.listing import (
+    FrameFiles,
+    GivenIntrinsics,
+    files_per_frame,
+    given_intrinsics,
+    intrinsics_from_matrix,
+    numbered_files,
+    require_color_for_depth,
+)
 from gsjax.data.poses import read_matrix
 
 DEPTH_SCALE = 1000.0  # raw units per metre

@@ -24,8 +24,15 @@ import numpy as np
 
 from gsjax.camera import Intrinsics, make_intrinsics
 from gsjax.data.images import image_size
-from gsjax.data.listing import (FrameFiles, GivenIntrinsics, files_per_frame, given_intrinsics, intrinsics_from_matrix,
-                                numbered_files, require_color_for_depth)
+from gsjax.data.listing import (
+    FrameFiles,
+    GivenIntrinsics,
+    files_per_frame,
+    given_intrinsics,
+    intrinsics_from_matrix,
+    numbered_files,
+    require_color_for_depth,
+)
 from gsjax.data.poses import read_matrix
 from gsjax.data.registration import ColorCamera
 

@@ -1,4 +1,5 @@
-"""File formats and host-side I/O: the only place (with the CLI) that touches the file system.
+"""File formats and host-side I/O: the only place (with the shell, :mod:`gsjax.app`) that touches
+the file system.
 
 * :mod:`gsjax.io.atomic`: ``atomic_write_bytes / _text / _json`` (temp file + ``os.replace``), used by every writer.
 * :mod:`gsjax.io.trajectory`: TUM trajectory files (camera-to-world).

@@ -101,7 +101,8 @@ def render_panel(color, color_gt, depth=None, depth_gt=None, *, min_width: int =
         depth, rendered_valid = _depth_and_valid(depth)
         depth_gt, valid = _depth_and_valid(depth_gt)
         if depth.shape != depth_gt.shape or depth.shape != color.shape[:2]:
-            raise ValueError(f"depth shapes {depth.shape}, {depth_gt.shape} do not match the colour's {color.shape[:2]}")
+            raise ValueError(f"depth shapes {depth.shape}, {depth_gt.shape} do not match the colour's "
+                             f"{color.shape[:2]}")
         lo, hi = _percentile_range(depth_gt, valid)
         error = np.abs(np.where(rendered_valid, depth, 0.0) - np.where(valid, depth_gt, 0.0))
         rows.append([(colorize_depth(depth, lo, hi), "render depth"), (colorize_depth(depth_gt, lo, hi),

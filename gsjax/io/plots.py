@@ -121,8 +121,9 @@ def plot_errors_over_time(
 
 def plot_sweep_heatmap(path: str | os.PathLike, rows: list[dict], fields: list[str], metric: str = "ate_rmse_cm",
                        title: str | None = None, dpi: int = 120) -> Path:
-    """Heat map of ``metric`` (the mean over the rows of a cell, i.e. over seeds) over the first two swept ``fields`` (x: first, y: second), one
-    panel per combination of the other fields' values; the cells are annotated (a blank cell: no value)."""
+    """Heat map of ``metric`` (the mean over the rows of a cell, i.e. over seeds) over the first two swept ``fields``
+    (x: first, y: second), one panel per combination of the other fields' values; the cells are annotated (a blank
+    cell: no value)."""
     x_field = fields[0] if fields else None
     y_field = fields[1] if len(fields) > 1 else None
     rest = fields[2:]

@@ -235,7 +235,8 @@ def render(
     :func:`check_render_inputs`).
     """
     check_render_inputs(gaussians, w2c, intrinsics, settings, cbknn, motion)
-    return _render(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, settings, cbknn, jnp.asarray(motion, jnp.float32))
+    return _render(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, settings, cbknn,
+                   jnp.asarray(motion, jnp.float32))
 
 
 @jax.jit

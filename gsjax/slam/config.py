@@ -18,6 +18,7 @@ from gsjax.checks import is_checkable
 from gsjax.names import CBKNN_MODES
 from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
+
 SLAM_MAX_CONTRIBUTORS = 96
 TRACKING_OPTIMIZERS = ("adam", "lm")
 BEST_POSE = ("pre_step", "post_step")

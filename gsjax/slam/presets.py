@@ -2,8 +2,9 @@
 (method_spec A.11) and the paper's CB-KNN K0 (D.6); ``cpu`` is sized for 2 CPU cores.
 
 A preset owns its resolution. Its pixel-sized settings (``mapping.overlap_margin``, and ``cbknn.params.alpha`` in
-the "unit" shift mode, where it is px) are given for the image width in :data:`PRESET_WIDTH`; ``preset(name, width=w)`` scales them to ``w`` px, so the same preset means the same physical
-margins and shifts at any resolution. The ``cpu`` preset also works at about that width (``gsjax run`` reduces its
+the "unit" shift mode, where it is px) are given for the image width in :data:`PRESET_WIDTH`;
+``preset(name, width=w)`` scales them to ``w`` px, so the same preset means the same physical margins and shifts at
+any resolution. The ``cpu`` preset also works at about that width (``gsjax run`` reduces its
 input to ~80 px across, :func:`working_downscale`); the paper presets work at the input's own resolution.
 """
 
@@ -15,7 +16,6 @@ from gsjax.names import PRESETS
 from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
 from gsjax.slam.config import CBKNNConfig, MappingConfig, SlamConfig, TrackingConfig
-
 
 # The width (px) each preset's pixel-sized settings are given for: the cpu preset's working width, and the native
 # width of the dataset each paper preset is for (Replica 1200x680, TUM and ScanNet 640x480).

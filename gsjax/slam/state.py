@@ -9,7 +9,6 @@ import jax.numpy as jnp
 
 from gsjax.gaussians import Gaussians
 
-
 DEPTH_UNIT_M = 1e-3  # stored keyframe depth unit: millimetres (the raw unit of 7-Scenes, ScanNet, most sensors)
 _DEPTH_MAX = 65535
 

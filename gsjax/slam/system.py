@@ -1,7 +1,7 @@
 """One SLAM step per frame (track -> densify -> map -> keyframe) and ``lax.scan`` over a chunk of frames.
 
 ``step(state, frame)`` is pure and jit-able; :func:`run_chunk` scans it over a stacked chunk of frames. The shell
-(:mod:`gsjax.runner`) streams chunks from disk, checkpoints and grows capacity between them. The first frame goes
+(:mod:`gsjax.app.runner`) streams chunks from disk, checkpoints and grows capacity between them. The first frame goes
 through the same step: on the empty map every valid pixel is densified (SplaTAM's initialisation), tracking is
 skipped (the first camera defines the world frame), and the frame is mapped and becomes keyframe 0.
 
@@ -99,8 +99,8 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
     """
     frame = sanitize_frame(frame)
     usable = jnp.mean(frame.depth > 0) >= config.min_valid_depth
-    return jax.lax.cond(usable, lambda s: _process(s, frame, config, intrinsics, pose), lambda s: _coast(s, config, pose),
-                        state)
+    return jax.lax.cond(usable, lambda s: _process(s, frame, config, intrinsics, pose),
+                        lambda s: _coast(s, config, pose), state)
 
 
 def _coast(state: SlamState, config: SlamConfig, pose) -> tuple[SlamState, StepOutputs]:

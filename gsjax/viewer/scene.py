@@ -274,8 +274,8 @@ class MapViewer:
         camera = self._camera
         return self._server.scene.add_camera_frustum(
             name, fov=2.0 * math.atan2(camera.height / 2.0, camera.fy), aspect=camera.width / camera.height,
-            scale=scale, thickness=thickness * scale, color=rgb, wxyz=rotation_to_quaternion_wxyz(c2w[:3, :3]), position=c2w[:3, 3],
-            visible=visible)
+            scale=scale, thickness=thickness * scale, color=rgb, wxyz=rotation_to_quaternion_wxyz(c2w[:3, :3]),
+            position=c2w[:3, 3], visible=visible)
 
     def _set_initial_camera(self, trajectory: TrajectorySnapshot, scale: float) -> None:
         """Behind and above the first camera, looking at the middle of the trajectory's view."""

@@ -8,12 +8,12 @@ time over the same frames (:func:`gsjax.slam.driver.batch_chunk_loop`, bounding 
 axis sharded over every device of a 1-D mesh. With V = 1 (the CPU default: XLA:CPU runs the vmapped scan slower
 per config than the plain one) each config is one call of the plain program, configs spread round-robin over the
 devices and dispatched together, and every row is bit for bit the separate ``gsjax run``. On CPU the CLI asks for
-one device per two cores (:func:`gsjax.sweep_devices.request_cpu_devices`), so that many configs run at once.
+one device per two cores (:func:`gsjax.app.sweep_devices.request_cpu_devices`), so that many configs run at once.
 
 Multi-host: start every process with the same command and ``GSJAX_DISTRIBUTED=1`` (see
-:func:`gsjax.sweep_devices.maybe_initialize_distributed`); the mesh then spans every process's devices. With V = 1
+:func:`gsjax.app.sweep_devices.maybe_initialize_distributed`); the mesh then spans every process's devices. With V = 1
 each process runs the configs of its own devices and the finished ones are gathered
-(:func:`gsjax.sweep_devices.share_results`); a stacked group is
+(:func:`gsjax.app.sweep_devices.share_results`); a stacked group is
 sharded over the processes and gathered after each chunk. Process 0 writes every output; the others write nothing.
 Tested with two processes on one machine.
 
@@ -35,15 +35,15 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from gsjax.config_text import apply_overrides, config_to_dict
+from gsjax.app.progress import Progress
+from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run
+from gsjax.app.sweep_devices import batch_mesh, place_batch, share_results, to_host
+from gsjax.config_text import apply_overrides
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_bytes, atomic_write_json
-from gsjax.io.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run
-from gsjax.progress import Progress
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import Group, batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
 from gsjax.slam.state import initial_state, keyframe_capacity_for
-from gsjax.sweep_devices import batch_mesh, place_batch, share_results, to_host
 
 CSV_METRICS = ("seed", "ate_rmse_cm", "ate_splatam_cm", "psnr_db", "depth_l1_cm", "seconds", "run")
 
@@ -194,8 +194,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
               *, describe: dict | None = None, input_warnings: tuple[str, ...] = (), say=print) -> list[dict]:
     """Run the grid of ``axes`` x ``seeds`` over ``base`` on ``sequence``; write ``runs/NNN`` per config and the
     sweep tables; return the rows (one dict per config, the columns of ``sweep.csv``)."""
-    from gsjax.run_outputs import write_outputs
-    from gsjax.runner import RunOptions, _camera_record
+    from gsjax.app.run_outputs import OutputOptions, run_record, write_outputs
 
     points = expand_grid(base, axes, seeds)
     out = Path(options.out)
@@ -225,7 +224,6 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
         f"{max(len(b) for b in batches)} on {devices} device(s), {width} config(s) vmapped per program call, "
         f"{total} frames each")
     progress = Progress(total * len(batches), 0, options.progress and writer)
-    camera = _camera_record(sequence)
     rows: list[dict] = []
     timings = dict(slam_s=0.0, regrow_s=0.0, read_frames_s=0.0, outputs_s=0.0, first_chunk_s=[])
     t_start = time.perf_counter()
@@ -263,9 +261,8 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
                 state, outputs = per_config[i]
                 run_dir = out / "runs" / f"{point.index:03d}"
                 run_outputs = {name: np.asarray(v).tolist() for name, v in outputs._asdict().items()}
-                record = dict(describe or {}, frames=total, width=width_px, height=height, chunk=options.chunk,
-                              seed=point.seed, camera=camera, config=config_to_dict(point.config),
-                              sweep=dict(values=point.values, batch=number, batch_size=len(batch)))
+                record = run_record(sequence, point.config, chunk=options.chunk, seed=point.seed, describe=describe,
+                                    frames=total, sweep=dict(values=point.values, batch=number, batch_size=len(batch)))
                 seconds = (slam_s + regrow_s) / len(batch)
                 run_timings = dict(slam_s=seconds, batch_slam_s=slam_s, batch_regrow_s=regrow_s,
                                    batch_size=len(batch))
@@ -273,9 +270,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
                     run_dir.mkdir(parents=True, exist_ok=True)
                     atomic_write_json(run_dir / "config.json", record)
                     metrics = write_outputs(sequence, point.config,
-                                            RunOptions(out=run_dir, chunk=options.chunk, seed=point.seed,
-                                                       eval_every=options.eval_every, samples=options.samples,
-                                                       progress=False),
+                                            OutputOptions(run_dir, options.eval_every, options.samples),
                                             jax.device_get(state), run_outputs, run_timings, record,
                                             list(input_warnings))
                     rows.append(_row(point, metrics, seconds, run_dir.relative_to(out)))
@@ -288,7 +283,8 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
         _write_tables(out, rows, fields)
         from gsjax.io.plots import plot_sweep_heatmap
 
-        plot_sweep_heatmap(out / "sweep.png", rows, fields, title=f"{sequence.name}: ATE RMSE (cm), mean over {len(seeds)} seed(s)")
+        plot_sweep_heatmap(out / "sweep.png", rows, fields,
+                           title=f"{sequence.name}: ATE RMSE (cm), mean over {len(seeds)} seed(s)")
         atomic_write_json(out / "sweep.json", dict(
             describe or {}, grid={a.field: list(a.values) for a in axes}, seeds=sorted({p.seed for p in points}),
             configs=len(points), programs=len(groups), static_fields=statics, batches=len(batches),

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsjax.config_text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.eval.image import render_metrics_splatam
 from gsjax.eval.trajectory import ate_rmse_c2w, evaluate_trajectory
@@ -26,11 +27,29 @@ from gsjax.raster import render
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import SlamState
 
-if TYPE_CHECKING:
-    from gsjax.runner import RunOptions
+
+class OutputOptions(NamedTuple):
+    """Where a run's outputs go and what is rendered for them: the ``out`` folder; render metrics on t = 0 and
+    (t + 1) % ``eval_every`` == 0 (SplaTAM's rule); ``samples`` render-vs-input panels in ``renders/``."""
+
+    out: Path
+    eval_every: int = 5
+    samples: int = 3
 
 
-def write_outputs(sequence: Sequence, config: SlamConfig, options: RunOptions, state: SlamState, outputs: dict,
+def run_record(sequence: Sequence, config: SlamConfig, *, chunk: int, seed: int, describe: dict | None = None,
+               frames: int | None = None, **extra) -> dict:
+    """What ``config.json`` holds for a run of ``frames`` (default: all) of ``sequence``: ``describe`` (the command's
+    account of the input), the size, chunk and seed, the camera (intrinsics at the working resolution, the depth
+    files' units per metre), the config as a dict, and ``extra`` entries."""
+    k = sequence.intrinsics
+    camera = dict(fx=float(k.fx), fy=float(k.fy), cx=float(k.cx), cy=float(k.cy), width=k.width, height=k.height,
+                  depth_scale=sequence.depth_scale)
+    return dict(describe or {}, frames=len(sequence) if frames is None else frames, width=k.width, height=k.height,
+                chunk=chunk, seed=seed, camera=camera, config=config_to_dict(config), **extra)
+
+
+def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: dict,
                   timings: dict, record: dict, warnings: list[str], checkpoints: dict | None = None) -> dict:
     """Evaluate a finished run and write ``trajectory.txt``, ``groundtruth.txt`` (when the sequence has ground
     truth), ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and ``metrics.json`` into
@@ -133,7 +152,7 @@ def _cbknn_stats(gaussians, w2c, intrinsics, settings, params, motion):
     return render(gaussians, w2c, intrinsics, settings, cbknn=params, motion=motion).stats.cbknn
 
 
-def _render_metrics(sequence, config: SlamConfig, options: RunOptions, state: SlamState,
+def _render_metrics(sequence, config: SlamConfig, options: OutputOptions, state: SlamState,
                     outputs: dict) -> tuple[dict, dict | None]:
     """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0, except frames
     skipped for lack of depth: the final map rendered canonically at the estimated poses, compared with the input
@@ -197,7 +216,8 @@ def summary_lines(metrics: dict, out: Path) -> list[str]:
     traj = metrics.get("trajectory")
     if traj:
         lines.append(f"ATE RMSE (camera centres) {traj['ate_rmse_c2w_cm']:.2f} cm; SplaTAM's mean-of-w2c ATE "
-                     f"{traj['ate_splatam_mean_w2c_cm']:.2f} cm; constant pose {metrics['constant_pose_ate_rmse_c2w_cm']:.2f} cm")
+                     f"{traj['ate_splatam_mean_w2c_cm']:.2f} cm; "
+                     f"constant pose {metrics['constant_pose_ate_rmse_c2w_cm']:.2f} cm")
     render_mean = metrics["render"]["mean"]
     if render_mean is None:
         lines.append("no render metrics: no evaluation frame has usable depth")

@@ -22,10 +22,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run
 from gsjax.config_text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
-from gsjax.io.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run
 from gsjax.raster.cbknn import motion_from_poses
 from gsjax.slam import landscape as pure
 from gsjax.slam.config import SlamConfig
@@ -95,7 +95,8 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
         relative_gt = np.linalg.inv(np.linalg.inv(gt_c2w[0]) @ gt_c2w[: t + 1])  # w2c, world = the first camera
     t0 = time.perf_counter()
     poses = relative_gt[:t].astype(np.float32) if options.map_from == "gt" else None
-    say(f"gsjax landscape: mapping frames 0..{t - 1} ({'at their ground-truth poses' if poses is not None else 'SLAM'})")
+    how = "at their ground-truth poses" if poses is not None else "SLAM"
+    say(f"gsjax landscape: mapping frames 0..{t - 1} ({how})")
     built = slam_run(frames[:t], config, sequence.intrinsics, seed=options.seed, poses=poses, chunk=options.chunk)
     map_s = time.perf_counter() - t0
     w2c = built.w2c

@@ -1,11 +1,11 @@
 """The imperative shell of ``gsjax run``: stream chunks of frames through the jitted SLAM scan, checkpoint,
-grow capacity, report progress; then :mod:`gsjax.run_outputs` evaluates and writes the outputs.
+grow capacity, report progress; then :mod:`gsjax.app.run_outputs` evaluates and writes the outputs.
 
 The chunk loop is :func:`gsjax.slam.driver.chunk_loop` (the same one :func:`gsjax.slam.run` and the sweep use;
 it grows the map capacity, logged here, when a chunk could not insert every new Gaussian). Between chunks this
 module:
 
-* checkpoints the run every ``checkpoint_every`` frames (:mod:`gsjax.io.checkpoint`: the map and what is new
+* checkpoints the run every ``checkpoint_every`` frames (:mod:`gsjax.app.checkpoints`: the map and what is new
   since the previous checkpoint) so ``--resume`` continues exactly where the run stopped, from the newest
   checkpoint that reads back whole;
 * shows a progress bar (frame, tracking loss, Gaussians, ATE so far when ground truth exists, frames/s).
@@ -28,14 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.config_text import config_to_dict
+from gsjax.app.progress import Progress
+from gsjax.app.run_dir import check_run_dir, clear_previous_run
+from gsjax.app.run_outputs import OutputOptions, run_record, write_outputs
 from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
 from gsjax.eval.trajectory import ate_so_far
 from gsjax.io.atomic import atomic_write_json, remove_stale_temporaries
-from gsjax.io.run_dir import check_run_dir, clear_previous_run
-from gsjax.progress import Progress
-from gsjax.run_outputs import write_outputs
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import chunk_loop
 from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
@@ -82,19 +81,16 @@ class RunOptions:
         if self.capacity is not None and self.capacity < 1:
             raise ValueError(f"--capacity must be >= 1, got {self.capacity}")
 
+    @property
+    def outputs(self) -> OutputOptions:
+        return OutputOptions(Path(self.out), self.eval_every, self.samples)
+
 
 # ------------------------------------------------------------------------------------------------ the run
 
 
 def _outputs_to_lists(outputs: StepOutputs, count: int) -> dict:
     return {name: np.asarray(value)[:count].tolist() for name, value in outputs._asdict().items()}
-
-
-def _camera_record(sequence: Sequence) -> dict:
-    """The camera the run uses (intrinsics at the working resolution, the depth files' units per metre)."""
-    k = sequence.intrinsics
-    return dict(fx=float(k.fx), fy=float(k.fy), cx=float(k.cx), cy=float(k.cy), width=k.width, height=k.height,
-                depth_scale=sequence.depth_scale)
 
 
 def _depth_unit_warning(sequence: Sequence, index: int, frame: Frame) -> str | None:
@@ -143,10 +139,10 @@ def run_slam(
     viewer); the time it takes is ``stage_timings_s["observe_s"]``.
     ``input_warnings``: what opening the sequence warned about, listed first in ``metrics.json``'s ``warnings``.
 
-    Raises :class:`gsjax.io.run_dir.RunDirError` before writing anything when ``options.out`` holds a previous run
+    Raises :class:`gsjax.app.run_dir.RunDirError` before writing anything when ``options.out`` holds a previous run
     and neither ``resume`` nor ``overwrite`` is set, or cannot be used at all (:func:`check_run_dir`).
     """
-    from gsjax.io.checkpoint import Checkpoints
+    from gsjax.app.checkpoints import Checkpoints
 
     out = Path(options.out)
     check_run_dir(out, resume=options.resume, overwrite=options.overwrite)
@@ -163,8 +159,7 @@ def run_slam(
     out.mkdir(parents=True, exist_ok=True)
     for directory in (out, out / "renders"):  # what writers killed mid-write left (never a finished output)
         remove_stale_temporaries(directory)
-    record = dict(describe or {}, frames=total, width=width, height=height, chunk=options.chunk, seed=options.seed,
-                  camera=_camera_record(sequence), config=config_to_dict(config))
+    record = run_record(sequence, config, chunk=options.chunk, seed=options.seed, describe=describe)
     timings = dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0)
     capacity = options.capacity or 2 * height * width
     kf_capacity = keyframe_capacity_for(total, config.keyframe_every)
@@ -277,7 +272,7 @@ def run_slam(
         checkpoints.close()
 
     timings["compile_s_estimate"] = _compile_estimate(first_chunk_s, timings["slam_s"], total, options.chunk)
-    return write_outputs(sequence, config, options, state, outputs, timings, record,
+    return write_outputs(sequence, config, options.outputs, state, outputs, timings, record,
                          [*input_warnings, *frame_warnings, *resume_warnings], ledger)
 
 

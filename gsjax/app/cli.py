@@ -1,0 +1,61 @@
+"""The ``gsjax`` command line: the imperative shell around the pure core.
+
+Each subcommand is a module of :mod:`gsjax.app.commands` with ``add(subparsers)``, which declares its flags, and
+``run(args)``, which runs it. Heavy imports happen inside ``run`` so ``gsjax --help`` stays fast. User errors (bad
+paths, bad values, bad data) are reported as one line ``gsjax <cmd>: error: ...`` with exit status 2, never a stack
+trace (``--debug`` shows it); what gsjax handles in a defined way is printed as ``warning: ...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from gsjax.app.commands import (
+    bench,
+    evaluate,
+    landscape,
+    report,
+    run,
+    sweep,
+    synth,
+    view,
+)
+from gsjax.app.commands.common import Parser, UserError, parse_overrides
+
+COMMANDS = (run, sweep, landscape, report, view, bench, evaluate, synth)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(prog="gsjax", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for command in COMMANDS:
+        command.add(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    try:  # a usage error (or --help) exits from argparse; in-process callers get its status back
+        args, extra = parser.parse_known_args(argv)
+        if extra and not getattr(args, "accepts_overrides", False):
+            parser.error(f"unrecognised arguments: {' '.join(extra)}")
+    except SystemExit as exit_:
+        return int(exit_.code or 0)
+    from gsjax.app.compilation_cache import enable_compilation_cache
+
+    enable_compilation_cache()
+    try:
+        args.overrides = parse_overrides(extra)
+        return int(args.func(args) or 0)
+    except (UserError, ValueError, OSError) as err:  # DatasetError and RunDirError are ValueErrors
+        if args.debug:
+            raise
+        print(f"gsjax {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        again = " (continue it with --resume)" if args.command == "run" else ""
+        print(f"gsjax {args.command}: interrupted{again}", file=sys.stderr)
+        return 130

@@ -1,0 +1,224 @@
+"""What the commands share: the one-line user error, the parser class, the common flags, argument types, and
+opening and configuring a run's sequence."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import warnings
+from pathlib import Path
+
+from gsjax.names import CBKNN_MODES, DATASETS, PRESETS
+
+
+class UserError(Exception):
+    """An error caused by the user's input; printed without a traceback."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (``gsjax run: error: argument --x: ...``), like every other error."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def dataset_warnings(open_fn):
+    """Call ``open_fn()``; print each distinct DatasetWarning it raised as one ``warning: ...`` line on stderr (other
+    warnings as Python shows them) -> (its result, the DatasetWarning messages). Distinct: ``gsjax run`` lists a
+    dataset twice (once to learn its image size)."""
+    from gsjax.data import DatasetWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DatasetWarning)
+        result = open_fn()
+    messages = []
+    for item in caught:
+        if issubclass(item.category, DatasetWarning):
+            if str(item.message) in messages:
+                continue
+            messages.append(str(item.message))
+            print(f"warning: {item.message}", file=sys.stderr, flush=True)
+        else:
+            warnings.showwarning(item.message, item.category, item.filename, item.lineno)
+    return result, messages
+
+
+# Options every subcommand takes.
+COMMON = argparse.ArgumentParser(add_help=False)
+COMMON.add_argument("--debug", action="store_true", help="show the full traceback of an error")
+
+
+SYNTHETIC_FRAMES = 30  # frames of `gsjax run --dataset synthetic` unless --max-frames says otherwise
+
+
+def port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port number 0-65535, got {text!r}")
+    return value
+
+
+def add_sequence_flags(p) -> None:
+    """The flags that choose the sequence, its camera and the config (shared by run, sweep and landscape)."""
+    p.add_argument("--dataset", choices=DATASETS + ("synthetic",), required=True)
+    p.add_argument("--path", type=Path, default=None, help="dataset directory (not needed for synthetic)")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--preset", choices=PRESETS, default="cpu", help="configuration preset (default cpu)")
+    p.add_argument("--cbknn", choices=CBKNN_MODES, default="off", help="CB-KNN mode (default off = SplaTAM)")
+    p.add_argument("--max-frames", type=int, default=None)
+    p.add_argument("--stride", type=int, default=1, help="use every N-th frame (faster motion)")
+    p.add_argument("--downscale", type=int, default=None,
+                   help="integer image reduction (default: to about 80 px wide for the cpu preset, else 1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--intrinsics", type=pinhole, default=None, metavar="FX,FY,CX,CY",
+                   help="the camera in pixels at the stored image size, overriding the dataset's own")
+    p.add_argument("--depth-scale", type=depth_scale, default=None, metavar="S",
+                   help="stored depth units per metre, overriding the dataset's (TUM 5000, 7-Scenes 1000)")
+    p.add_argument("--synthetic-noise", action="store_true",
+                   help="synthetic dataset only: Kinect-like sensor effects (depth noise, holes, colour noise, blur)")
+
+
+def pinhole(text: str) -> tuple[float, float, float, float]:
+    """``FX,FY,CX,CY`` -> four floats (fx, fy > 0); argparse reports the error naming --intrinsics."""
+    try:
+        values = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4 or not all(map(math.isfinite, values)):
+        raise argparse.ArgumentTypeError(f"expected FX,FY,CX,CY: four numbers in pixels, got {text!r}")
+    if values[0] <= 0 or values[1] <= 0:
+        raise argparse.ArgumentTypeError(f"the focal lengths FX and FY must be > 0, got {text!r}")
+    return values
+
+
+def depth_scale(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a number > 0 (stored depth units per metre), got {text!r}")
+    return value
+
+
+def parse_overrides(tokens: list[str]) -> dict[str, str]:
+    """``--a.b value`` / ``--a.b=value`` pairs -> {"a.b": "value"}."""
+    overrides, i = {}, 0
+    while i < len(tokens):
+        token = tokens[i]
+        if not token.startswith("--") or "." not in token:
+            raise UserError(f"unrecognised argument {token!r} (config overrides look like --tracking.iters 60)")
+        if "=" in token:
+            name, value = token[2:].split("=", 1)
+            i += 1
+        else:
+            if i + 1 >= len(tokens):
+                raise UserError(f"{token} needs a value")
+            name, value = token[2:], tokens[i + 1]
+            i += 2
+        overrides[name] = value
+    return overrides
+
+
+def open_run_sequence(args):
+    """The sequence to run on, with the downscale the preset implies."""
+    from gsjax.slam.presets import working_downscale
+
+    if args.stride < 1 or (args.max_frames is not None and args.max_frames < 1):
+        raise UserError("--stride and --max-frames must be >= 1")
+    if args.downscale is not None and args.downscale < 1:
+        raise UserError(f"--downscale must be >= 1, got {args.downscale}")
+    if args.dataset == "synthetic":
+        for flag, value in (("--intrinsics", args.intrinsics), ("--depth-scale", args.depth_scale)):
+            if value is not None:
+                raise UserError(f"{flag} applies to datasets read from disk; the synthetic scene has its own camera")
+        from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+
+        base = SyntheticConfig()
+        factor = args.downscale or working_downscale(args.preset, base.width)
+        if factor < 1 or base.width % factor or base.height % factor:
+            raise UserError(f"--downscale {factor} must divide the synthetic {base.width}x{base.height} image")
+        frames = args.max_frames or SYNTHETIC_FRAMES
+        config = SyntheticConfig(width=base.width // factor, height=base.height // factor, num_frames=frames,
+                                 speed=float(args.stride), seed=args.seed)
+        if args.synthetic_noise:
+            config = config.with_sensor_noise()
+        return synthetic_sequence(config), factor
+    from gsjax.data import open_sequence
+
+    if args.synthetic_noise:
+        raise UserError("--synthetic-noise applies to --dataset synthetic only")
+    if args.path is None:
+        raise UserError(f"--dataset {args.dataset} needs --path DIR")
+    if not args.path.is_dir():
+        raise UserError(f"--path {args.path}: no such directory")
+    camera = dict(intrinsics=args.intrinsics, depth_scale=args.depth_scale)
+    probe = open_sequence(args.dataset, args.path, max_frames=1, **camera)
+    native = probe.intrinsics
+    if args.intrinsics is not None and not (0 <= args.intrinsics[2] <= native.width
+                                            and 0 <= args.intrinsics[3] <= native.height):
+        raise UserError(f"--intrinsics: the principal point ({args.intrinsics[2]:g}, {args.intrinsics[3]:g}) lies "
+                        f"outside the {native.width}x{native.height} images; give the values in pixels at the stored "
+                        "image size")
+    factor = args.downscale or working_downscale(args.preset, native.width)
+    if factor > min(native.width, native.height):
+        raise UserError(f"--downscale {factor} leaves no pixel of the {native.width}x{native.height} images")
+    sequence = open_sequence(args.dataset, args.path, max_frames=args.max_frames, stride=args.stride,
+                             downscale=factor, **camera)
+    return sequence, factor
+
+
+def configure(args, width: int | None = None):
+    """The preset at the working ``width`` with the CB-KNN mode, then the command line's overrides as given."""
+    from gsjax.config_text import apply_overrides
+    from gsjax.slam.presets import preset, with_cbknn_mode
+
+    return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)
+
+
+def describe_run(args, sequence, factor: int) -> dict:
+    """What a run, sweep or landscape records about its input (config.json, metrics.json, sweep.json, ...)."""
+    return dict(dataset=args.dataset, path=str(args.path) if args.path else None, preset=args.preset,
+                cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides,
+                intrinsics=list(args.intrinsics) if args.intrinsics else None, depth_scale=args.depth_scale,
+                sequence=sequence.name)
+
+
+def backends(text: str) -> list[str]:
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    bad = [x for x in names if x not in ("xla", "pallas")]
+    if not names or bad:
+        raise argparse.ArgumentTypeError(f"{text!r}: a comma-separated list of xla, pallas")
+    return names
+
+
+def sizes(text: str) -> list[tuple[int, int]]:
+    from gsjax.app.bench import parse_size
+
+    try:
+        return [parse_size(x.strip()) for x in text.split(",") if x.strip()]
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err).removeprefix("--sizes: ")) from None
+
+
+def positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a positive integer")
+    return value
+
+
+def quiet_logs() -> None:
+    import logging
+
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    logging.getLogger("gsjax").setLevel(logging.INFO)
+    for noisy in ("absl", "orbax", "jax"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)

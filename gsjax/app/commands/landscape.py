@@ -1,0 +1,59 @@
+"""``gsjax landscape``: its flags (:func:`add`) and its body (:func:`run`)."""
+
+from __future__ import annotations
+
+from gsjax.app.commands.common import (
+    COMMON,
+    add_sequence_flags,
+    configure,
+    dataset_warnings,
+    describe_run,
+    open_run_sequence,
+    quiet_logs,
+)
+
+
+def add(sub) -> None:
+    p = sub.add_parser(
+        "landscape",
+        help="frame T's tracking loss and its jax.grad along pose perturbations, CB-KNN off vs paper, with basins",
+        description="Build the map from frames 0..T-1 (SLAM, or --map-from gt), then evaluate frame T's tracking "
+        "loss (exactly the tracker's) under left perturbations of the reference pose (frame T's ground truth, else "
+        "its tracked pose) along each axis (tx ty tz in cm, rx ry rz in degrees), with jax.grad at every grid point, "
+        "for CB-KNN off and paper; and the basin: how far off the tracker still returns to within 0.5 cm / 0.5 deg. "
+        "Writes landscape.json and landscape.png.",
+        parents=[COMMON],
+    )
+    add_sequence_flags(p)
+    p.add_argument("--frame", type=int, required=True, help="the frame T whose tracking loss is studied (>= 1)")
+    p.add_argument("--axes", default="tx,ry", help="comma-separated axes among tx,ty,tz,rx,ry,rz (default tx,ry)")
+    p.add_argument("--extent-cm", type=float, default=4.0, help="translation grid half-width (cm, default 4)")
+    p.add_argument("--extent-deg", type=float, default=4.0, help="rotation grid half-width (degrees, default 4)")
+    p.add_argument("--steps", type=int, default=21, help="grid points per axis (default 21)")
+    p.add_argument("--map-from", choices=("slam", "gt"), default="slam",
+                   help="build the map by SLAM (default) or at the ground-truth poses")
+    p.add_argument("--overwrite", action="store_true", help="replace a previous landscape in --out")
+    p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk while mapping (default 8)")
+    p.set_defaults(func=run, accepts_overrides=True)
+
+
+def run(args) -> int:
+    from gsjax.app.landscape import LandscapeOptions, run_landscape
+    from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir
+
+    quiet_logs()
+    configure(args)  # bad overrides are reported before any data is read
+    options = LandscapeOptions(out=args.out, frame=args.frame, axes=tuple(a.strip() for a in args.axes.split(",")),
+                               extent_cm=args.extent_cm, extent_deg=args.extent_deg, steps=args.steps,
+                               map_from=args.map_from, seed=args.seed, chunk=args.chunk, overwrite=args.overwrite)
+    check_run_dir(args.out, overwrite=args.overwrite, outputs=LANDSCAPE_OUTPUTS)
+    if args.max_frames is None:
+        args.max_frames = args.frame + 1  # frames past T are not read
+    (sequence, factor), _ = dataset_warnings(lambda: open_run_sequence(args))
+    describe = describe_run(args, sequence, factor)
+    document = run_landscape(sequence, configure(args, sequence.intrinsics.width), options, describe=describe)
+    for axis, entry in document["axes"].items():
+        print(f"{axis}: basin off {entry['off']['basin']:g} {entry['unit']}, paper {entry['paper']['basin']:g} "
+              f"{entry['unit']}")
+    print(f"outputs in {args.out.resolve()}: landscape.json landscape.png")
+    return 0
