@@ -22,7 +22,7 @@ from gsjax.app.bench import _peak_mib, bench_map, parse_size
 from gsjax.gaussians import Gaussians
 from gsjax.raster import RasterSettings
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.tracking import tracking_objective
+from gsjax.slam.tracking import TrackingProblem, tracking_objective
 from gsjax.slam.views import render_view
 
 UNBOUNDED = 1 << 40
@@ -37,7 +37,7 @@ def compiled_peaks(width: int, height: int, backend: str, slots_per_batch: int, 
     depth = jnp.ones((height, width), jnp.float32)
 
     def track_iteration(delta):
-        objective = tracking_objective(g, color, depth, w2c, intrinsics, config, False, 0.0)
+        objective = tracking_objective(TrackingProblem(g, color, depth, w2c, intrinsics, False, 0.0), config)
         return jax.value_and_grad(objective.loss)(delta)
 
     def map_iteration(fields):

@@ -85,7 +85,7 @@ def device_stages(sequence, config, frame_index: int, repeats: int) -> dict:
     from gsjax.slam.keyframes import select_window
     from gsjax.slam.mapping import gather_window_frames, map_window
     from gsjax.slam.system import _predicted_pose, step
-    from gsjax.slam.tracking import track_guarded
+    from gsjax.slam.tracking import TrackingProblem, track_guarded
     from gsjax.slam.views import render_view
 
     intrinsics = sequence.intrinsics
@@ -102,7 +102,8 @@ def device_stages(sequence, config, frame_index: int, repeats: int) -> dict:
 
     rows["step"] = median_ms(jax.jit(lambda s, f, c: step(s, f, c, intrinsics)), state, frame, config, repeats=repeats)
 
-    track = jax.jit(lambda g, c, d, w, cfg: track_guarded(g, c, d, w, intrinsics, cfg, False, 0.0, jnp.float32(0)))
+    track = jax.jit(lambda g, c, d, w, cfg: track_guarded(TrackingProblem(g, c, d, w, intrinsics, False, 0.0), cfg,
+                                                          jnp.float32(0)))
     rows["track"] = median_ms(track, g, frame.color, frame.depth, w2c0, config, repeats=repeats)
     w2c = track(g, frame.color, frame.depth, w2c0, config).w2c
 
@@ -190,7 +191,7 @@ def compare(sequence, config, frame_index: int, repeats: int, variants: dict) ->
     from gsjax.config_text import apply_overrides
     from gsjax.data.frame import to_device, without_ground_truth
     from gsjax.slam.system import _predicted_pose, step
-    from gsjax.slam.tracking import track_guarded
+    from gsjax.slam.tracking import TrackingProblem, track_guarded
 
     intrinsics = sequence.intrinsics
     frames = [sequence.read_host(i) for i in range(frame_index + 1)]
@@ -199,8 +200,8 @@ def compare(sequence, config, frame_index: int, repeats: int, variants: dict) ->
     w2c0 = _predicted_pose(state)
     stages = dict(
         step=jax.jit(lambda c: step(state, frame, c, intrinsics)),
-        track=jax.jit(lambda c: track_guarded(state.gaussians, frame.color, frame.depth, w2c0, intrinsics, c, False,
-                                              0.0, jnp.float32(0))),
+        track=jax.jit(lambda c: track_guarded(TrackingProblem(state.gaussians, frame.color, frame.depth, w2c0,
+                                                              intrinsics, False, 0.0), c, jnp.float32(0))),
     )
     configs = {name: apply_overrides(config, overrides) for name, overrides in variants.items()}
     for c in configs.values():  # compile and warm up

@@ -16,7 +16,7 @@ from gsjax.slam import landscape as pure
 from gsjax.slam.driver import run as slam_run
 from gsjax.slam.losses import rendered_depth, tracking_mask
 from gsjax.slam.presets import preset, with_cbknn_mode
-from gsjax.slam.tracking import tracking_objective
+from gsjax.slam.tracking import TrackingProblem, tracking_objective
 from slam_fixtures import CHUNK, FRAMES, relative_gt_w2c, tiny_sequence
 
 FRAME = 4
@@ -90,9 +90,9 @@ def test_landscape_gradients_agree_with_finite_differences_of_its_loss(mode, axi
     at = jnp.asarray([-0.6, 0.35, 0.8], jnp.float32)  # cm or deg, away from the L1 kink at 0
     smooth, gamma = jnp.bool_(mode != "off"), jnp.float32(0.3)
     intrinsics = tiny_sequence().intrinsics
-    _, grad = jax.jit(pure.loss_and_grad)(gaussians, color, depth, w2c, intrinsics, mode_config, smooth, gamma,
-                                          direction, at)
-    objective = tracking_objective(gaussians, color, depth, w2c, intrinsics, mode_config, smooth, gamma)
+    problem = TrackingProblem(gaussians, color, depth, w2c, intrinsics, smooth, gamma)
+    _, grad = jax.jit(pure.loss_and_grad)(problem, mode_config, direction, at)
+    objective = tracking_objective(problem, mode_config)
     cfg = mode_config.tracking
 
     @jax.jit

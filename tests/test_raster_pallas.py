@@ -327,16 +327,16 @@ def test_forward_mode_needs_the_xla_path_and_for_forward_mode_gives_it():
 def test_the_lm_tracker_runs_with_pallas_settings_and_tracks_as_with_xla():
     from gsjax.camera import camera_center
     from gsjax.slam.config import SlamConfig, TrackingConfig
-    from gsjax.slam.tracking import track
+    from gsjax.slam.tracking import TrackingProblem, track
 
     gaussians, w2c, intr = scenes.SCENES["dense_surface"](0)
     target = raster().render(gaussians, w2c, intr, settings())
     start = se3_exp(jnp.asarray([0.01, -0.005, 0.0, 0.0, 0.01, 0.0], jnp.float32)) @ w2c
-    results = {}
+    results, problem = {}, TrackingProblem(gaussians, target.color, target.depth, start, intr, False, 0.0)
     for backend in ("xla", "pallas"):
         config = SlamConfig(tracking=TrackingConfig(optimizer="lm", iters=4))
         config = dataclasses.replace(config, raster=dataclasses.replace(config.raster, backend=backend))
-        results[backend] = track(gaussians, target.color, target.depth, start, intr, config, False, 0.0)
+        results[backend] = track(problem, config)
     np.testing.assert_allclose(np.asarray(results["pallas"].w2c), np.asarray(results["xla"].w2c), atol=1e-6)
     error = lambda pose: float(jnp.linalg.norm(camera_center(pose) - camera_center(w2c)))  # noqa: E731
     assert error(results["pallas"].w2c) < 0.5 * error(start)  # it did track

@@ -13,7 +13,7 @@ import numpy as np
 from gsjax.camera import constant_velocity, orthonormalize, se3_exp
 from gsjax.config_text import apply_overrides
 from gsjax.slam.system import run_chunk
-from gsjax.slam.tracking import track, track_guarded, within_step_bound
+from gsjax.slam.tracking import TrackingProblem, track, track_guarded, within_step_bound
 from slam_fixtures import CHUNK, FRAMES, all_finite, assert_trees_equal, frames, initial, tiny_config, tiny_sequence
 
 
@@ -125,12 +125,12 @@ def test_the_retry_is_the_tracker_again_with_its_steps_scaled_and_the_lower_loss
     cfg = config.tracking
     slower = dataclasses.replace(config, tracking=dataclasses.replace(cfg, lr_trans=cfg.lr_trans * 2,
                                                                       lr_rot=cfg.lr_rot * 2))
-    args = (state.gaussians, frame.color[0], frame.depth[0], state.w2c_prev1, tiny_sequence().intrinsics)
+    problem = TrackingProblem(state.gaussians, frame.color[0], frame.depth[0], state.w2c_prev1,
+                              tiny_sequence().intrinsics, False, 0.0)
 
     @jax.jit
     def attempts(config, slower):
-        guarded = track_guarded(*args, config, False, 0.0, jnp.float32(1e-9))
-        return guarded, track(*args, config, False, 0.0), track(*args, slower, False, 0.0)
+        return track_guarded(problem, config, jnp.float32(1e-9)), track(problem, config), track(problem, slower)
 
     guarded, first, second = attempts(config, slower)
     assert bool(guarded.retried) and not bool(guarded.diverged)

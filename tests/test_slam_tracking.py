@@ -15,7 +15,7 @@ from gsjax.config_text import apply_overrides
 from gsjax.raster import render
 from gsjax.slam.losses import rendered_depth, tracking_loss
 from gsjax.slam.presets import with_cbknn_mode
-from gsjax.slam.tracking import _track_adam, track
+from gsjax.slam.tracking import TrackingProblem, _track_adam, track
 from gsjax.slam.views import render_view
 from slam_fixtures import first_frame_map, map_config, relative_gt_w2c, tiny_sequence
 
@@ -61,7 +61,8 @@ def test_tracking_recovers_a_known_perturbation_of_a_rendered_map(rendered_scene
     delta = jnp.asarray(PERTURBATIONS[perturbation], jnp.float32)
     w2c_init = se3_exp(delta) @ w2c_true
     config = apply_overrides(tracking_config(optimizer, iters), {"tracking.strided_iters": str(strided)})
-    result = track_jit(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, config, False, 0.0)
+    problem = TrackingProblem(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, False, 0.0)
+    result = track_jit(problem, config)
     trans, rot = pose_error(result.w2c, w2c_true)
     # Measured: at most 5.3% (Adam, 60 iterations), 5.1% (Adam, 40 strided + 20) and 4e-6 (LM, 10 iterations) of
     # the perturbation.
@@ -101,9 +102,9 @@ def test_strided_iterations_descend_the_full_loss_and_only_full_ones_pick_the_po
     w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
     intrinsics = tiny_sequence().intrinsics
     config = apply_overrides(tracking_config("adam", 1), {"tracking.strided_iters": "40"})
-    objective, color_s, depth_s = strided_problem(gaussians, color, depth, w2c_init, intrinsics, config, False,
-                                                  0.0)(3)
-    full = tracking_objective(gaussians, color, depth, w2c_init, intrinsics, config, False, 0.0)
+    problem = TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0)
+    objective, color_s, depth_s = strided_problem(problem, config)(3)
+    full = tracking_objective(problem, config)
     zero = jnp.zeros(6, jnp.float32)
     view = full.view_at(zero)
     on_grid = view._replace(color=view.color[1::2, 1::2], depth=view.depth[1::2, 1::2],
@@ -111,7 +112,7 @@ def test_strided_iterations_descend_the_full_loss_and_only_full_ones_pick_the_po
     expected = 4.0 * tracking_loss(on_grid, color_s, depth_s, full.lambda_color, config.tracking.lambda_depth,
                                    config.tracking.sil_threshold, config.tracking.normalized_depth)
     np.testing.assert_allclose(float(objective.loss(zero)), float(expected), rtol=1e-5)
-    result = track_jit(gaussians, color, depth, w2c_init, intrinsics, config, False, 0.0)
+    result = track_jit(TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0), config)
     assert int(result.iterations) == 41
     delta = se3_log(result.w2c @ jnp.linalg.inv(w2c_init))
     assert float(full.loss(delta)) < 0.2 * float(full.loss(zero))
@@ -133,7 +134,8 @@ def test_a_frame_with_a_nan_pixel_keeps_the_initial_pose_and_counts_nonfinite(re
     gaussians, color, depth, w2c_true = rendered_scene
     w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
     config = tracking_config(optimizer, iters)
-    result = track_jit(gaussians, nan_pixel(color), depth, w2c_init, tiny_sequence().intrinsics, config, False, 0.0)
+    problem = TrackingProblem(gaussians, nan_pixel(color), depth, w2c_init, tiny_sequence().intrinsics, False, 0.0)
+    result = track_jit(problem, config)
     np.testing.assert_array_equal(np.asarray(result.w2c), np.asarray(w2c_init))
     assert int(result.nonfinite) == counted
 
@@ -213,7 +215,8 @@ def one_iteration_tracking(rendered_scene):
     def run(mode, smooth, **cbknn):
         config = apply_overrides(tracking_config("adam", 1, mode), {"tracking.best_pose": "post_step"})
         config = dataclasses.replace(config, cbknn=dataclasses.replace(config.cbknn, **cbknn))
-        return track_jit(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, config, smooth, 0.3)
+        problem = TrackingProblem(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, smooth, 0.3)
+        return track_jit(problem, config)
 
     return run, w2c_init
 

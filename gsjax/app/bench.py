@@ -28,7 +28,7 @@ from gsjax.raster import pallas, render
 from gsjax.raster.binning import TileGrid, bin_gaussians
 from gsjax.raster.project import project
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.tracking import tracking_objective
+from gsjax.slam.tracking import TrackingProblem, tracking_objective
 
 COLUMNS = ("backend", "size", "gaussians", "mean_list", "k", "compile_s", "fwd_ms", "fwd_bwd_ms", "track_iter_ms",
            "ns_per_px_cand", "track_peak_mib", "device_peak_mib", "truncated_px")
@@ -133,7 +133,7 @@ def measure(backend: str, width: int, height: int, gaussians: int | None, repeat
     start = se3_exp(jnp.asarray([0.01, 0.0, 0.0, 0.0, 0.0087, 0.0], jnp.float32)) @ w2c
 
     def track_iteration(delta):
-        objective = tracking_objective(g, color, depth, start, intrinsics, config, False, 0.0)
+        objective = tracking_objective(TrackingProblem(g, color, depth, start, intrinsics, False, 0.0), config)
         return jax.value_and_grad(objective.loss)(delta)
 
     compile_track, t_track, compiled_track = _timed(track_iteration, delta, repeats=repeats)

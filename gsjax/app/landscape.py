@@ -26,13 +26,12 @@ from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_r
 from gsjax.config_text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
-from gsjax.raster.cbknn import motion_from_poses
 from gsjax.slam import landscape as pure
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import run as slam_run
 from gsjax.slam.presets import with_cbknn_mode
+from gsjax.slam.system import tracking_problem
 from gsjax.slam.tracking import track
-from gsjax.slam.views import is_keyframe
 
 MODES = ("off", "paper")
 
@@ -99,23 +98,14 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     say(f"gsjax landscape: mapping frames 0..{t - 1} ({how})")
     built = slam_run(frames[:t], config, sequence.intrinsics, seed=options.seed, poses=poses, chunk=options.chunk)
     map_s = time.perf_counter() - t0
-    w2c = built.w2c
-    params = config.cbknn.params
-    gamma = motion_from_poses(jnp.asarray(w2c[t - 2]), jnp.asarray(w2c[t - 1]), params.tau_t, params.tau_r) \
-        if t >= 2 else jnp.float32(0.0)
-    frame = frames[t]
-    color, depth = jnp.asarray(frame.color), jnp.asarray(frame.depth)
-    gaussians = built.state.gaussians
+    # Frame T's problem exactly as SLAM's step poses it after frames 0..T-1 (prediction, motion, smooth flag).
+    problem = tracking_problem(built.state, jnp.asarray(frames[t].color), jnp.asarray(frames[t].depth), config,
+                               sequence.intrinsics)
+    gamma = problem.gamma
     if relative_gt is not None:
         reference, w2c_ref = "gt", jnp.asarray(relative_gt[t], jnp.float32)
     else:  # what SLAM's step would give frame T: the tracker from the constant-velocity prediction
-        from gsjax.camera import constant_velocity
-
-        start = constant_velocity(jnp.asarray(w2c[t - 2]), jnp.asarray(w2c[t - 1])) if t >= 2 else jnp.asarray(
-            w2c[t - 1])
-        smooth = config.cbknn.smooth_renders and bool(is_keyframe(t, t + 1, config.keyframe_every))
-        reference = "tracked"
-        w2c_ref = track(gaussians, color, depth, start, sequence.intrinsics, config, smooth, gamma).w2c
+        reference, w2c_ref = "tracked", track(problem, config).w2c
     offsets = grid(options)
     directions = pure.directions(options.axes)
     document = dict(frame=t, reference=reference, axes={})
@@ -125,9 +115,9 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     for mode in MODES:
         t0 = time.perf_counter()
         mode_config = with_cbknn_mode(config, mode)
-        result = jax.device_get(pure.landscape(gaussians, color, depth, w2c_ref, sequence.intrinsics, mode_config,
-                                               jnp.bool_(mode == "paper"), gamma, directions, jnp.asarray(offsets,
-                                                                                                        jnp.float32)))
+        # Around the reference pose; paper renders smoothed at every offset (as on a keyframe), off never.
+        around = problem._replace(w2c_init=w2c_ref, smooth=jnp.bool_(mode == "paper"))
+        result = jax.device_get(pure.landscape(around, mode_config, directions, jnp.asarray(offsets, jnp.float32)))
         timings[f"{mode}_s"] = time.perf_counter() - t0
         for i, axis in enumerate(options.axes):
             converged = (result.error_cm[i] <= pure.CONVERGED_CM) & (result.error_deg[i] <= pure.CONVERGED_DEG)

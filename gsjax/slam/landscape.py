@@ -15,10 +15,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from gsjax.camera import Intrinsics, rotation_angle, se3_exp
-from gsjax.gaussians import Gaussians
+from gsjax.camera import rotation_angle, se3_exp
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.tracking import track, tracking_objective
+from gsjax.slam.tracking import TrackingProblem, track, tracking_objective
 
 # name -> (tangent component, unit, metres or radians per unit)
 AXES = {
@@ -48,23 +47,23 @@ class Landscape(NamedTuple):
     error_deg: jax.Array
 
 
-def loss_and_grad(gaussians: Gaussians, color, depth, w2c_ref, intrinsics: Intrinsics, config: SlamConfig, smooth,
-                  gamma, direction: jax.Array, offsets: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The tracking loss [S] at ``offsets`` [S] along ``direction`` [6] (tangent per unit offset) and its derivative
-    with respect to the offset [S]."""
-    objective = tracking_objective(gaussians, color, depth, w2c_ref, intrinsics, config, smooth, gamma)
+def loss_and_grad(problem: TrackingProblem, config: SlamConfig, direction: jax.Array,
+                  offsets: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The tracking loss [S] of ``problem`` at ``offsets`` [S] from its reference pose ``problem.w2c_init`` along
+    ``direction`` [6] (tangent per unit offset), and its derivative with respect to the offset [S]."""
+    objective = tracking_objective(problem, config)
     along = jax.value_and_grad(lambda offset: objective.loss(direction * offset))
     return jax.vmap(along)(offsets)
 
 
-def tracked_from(gaussians: Gaussians, color, depth, w2c_ref, intrinsics: Intrinsics, config: SlamConfig, smooth,
-                 gamma, direction: jax.Array, offsets: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Run the tracker (its optimiser and iterations) from each perturbed pose; its final distance from ``w2c_ref``
-    as (translation cm [S], rotation deg [S])."""
+def tracked_from(problem: TrackingProblem, config: SlamConfig, direction: jax.Array,
+                 offsets: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Run the tracker (its optimiser and iterations) from each perturbed pose; its final distance from the reference
+    pose ``problem.w2c_init`` as (translation cm [S], rotation deg [S])."""
+    w2c_ref = problem.w2c_init
 
     def one(offset):
-        result = track(gaussians, color, depth, se3_exp(direction * offset) @ w2c_ref, intrinsics, config, smooth,
-                       gamma)
+        result = track(problem._replace(w2c_init=se3_exp(direction * offset) @ w2c_ref), config)
         relative = result.w2c @ jnp.linalg.inv(w2c_ref)  # the residual left perturbation
         return 100.0 * jnp.linalg.norm(relative[:3, 3]), jnp.degrees(rotation_angle(relative[:3, :3]))
 
@@ -72,15 +71,13 @@ def tracked_from(gaussians: Gaussians, color, depth, w2c_ref, intrinsics: Intrin
 
 
 @jax.jit
-def landscape(gaussians: Gaussians, color, depth, w2c_ref, intrinsics: Intrinsics, config: SlamConfig, smooth,
-              gamma, directions: jax.Array, offsets: jax.Array) -> Landscape:
-    """:func:`loss_and_grad` and :func:`tracked_from` along every direction [A, 6] at every offset [A, S]."""
+def landscape(problem: TrackingProblem, config: SlamConfig, directions: jax.Array, offsets: jax.Array) -> Landscape:
+    """:func:`loss_and_grad` and :func:`tracked_from` along every direction [A, 6] at every offset [A, S], around
+    the reference pose ``problem.w2c_init``."""
 
     def axis(direction, grid):
-        loss, grad = loss_and_grad(gaussians, color, depth, w2c_ref, intrinsics, config, smooth, gamma, direction,
-                                   grid)
-        error_cm, error_deg = tracked_from(gaussians, color, depth, w2c_ref, intrinsics, config, smooth, gamma,
-                                           direction, grid)
+        loss, grad = loss_and_grad(problem, config, direction, grid)
+        error_cm, error_deg = tracked_from(problem, config, direction, grid)
         return Landscape(loss, grad, error_cm, error_deg)
 
     return jax.vmap(axis)(directions, offsets)

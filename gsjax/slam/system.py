@@ -32,7 +32,7 @@ from gsjax.slam.keyframes import select_window
 from gsjax.slam.mapping import gather_window_frames, map_window
 from gsjax.slam.noise import NOISE_STREAM, add_depth_noise, perturb_map
 from gsjax.slam.state import SlamState
-from gsjax.slam.tracking import GuardedTrack, track_guarded
+from gsjax.slam.tracking import GuardedTrack, TrackingProblem, track_guarded
 from gsjax.slam.views import is_keyframe, render_view
 
 
@@ -90,6 +90,21 @@ def _predicted_pose(state: SlamState) -> jax.Array:
     return jnp.where(state.frame >= 2, constant_velocity(state.w2c_prev2, state.w2c_prev1), state.w2c_prev1)
 
 
+def tracking_problem(state: SlamState, color: jax.Array, depth: jax.Array, config: SlamConfig,
+                     intrinsics: Intrinsics) -> TrackingProblem:
+    """The tracking problem of the frame after ``state`` (its colour [H, W, 3] and depth [H, W]), as :func:`step`
+    poses it: the map, the constant-velocity prediction, CB-KNN's motion from the last two poses, and the smooth flag
+    (``paper`` mode and a keyframe; the first frame with depth always is one)."""
+    return TrackingProblem(state.gaussians, color, depth, _predicted_pose(state), intrinsics,
+                           jnp.asarray(config.cbknn.smooth_renders) & _is_keyframe(state, config),
+                           _motion(state, config))
+
+
+def _is_keyframe(state: SlamState, config: SlamConfig) -> jax.Array:
+    """The frame after ``state`` is a keyframe: by SplaTAM's rule, or the first frame with depth (the map's first)."""
+    return is_keyframe(state.frame, state.num_frames, config.keyframe_every) | (state.keyframes.count == 0)
+
+
 def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics,
          pose: jax.Array | None = None) -> tuple[SlamState, StepOutputs]:
     """Process one frame (its colour and depth); returns the new state and the frame's outputs.
@@ -125,21 +140,18 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
     state = dataclasses.replace(state, gaussians=clean)
     frame = add_depth_noise(frame, config.noise, jax.random.fold_in(state.key, NOISE_STREAM))
     started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
-    keyframe = is_keyframe(t, state.num_frames, config.keyframe_every) | ~started
-    smooth = jnp.asarray(config.cbknn.smooth_renders) & keyframe
-    gamma = _motion(state, config)
+    keyframe = _is_keyframe(state, config)
+    problem = tracking_problem(state, frame.color, frame.depth, config, intrinsics)
+    smooth, gamma, w2c_init = problem.smooth, problem.gamma, problem.w2c_init
     key_window, key_map, key_next = jax.random.split(state.key, 3)
 
     with jax.named_scope("track"):
-        w2c_init = _predicted_pose(state)
-
         def do_track():
             if pose is not None:
                 return GuardedTrack(pose, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False),
                                     jnp.int32(0))
             seen = perturb_map(state.gaussians, config.noise, jax.random.fold_in(state.key, NOISE_STREAM + 1))
-            return track_guarded(seen, frame.color, frame.depth, w2c_init, intrinsics, config, smooth, gamma,
-                                 state.previous_tracking_loss)
+            return track_guarded(problem._replace(gaussians=seen), config, state.previous_tracking_loss)
 
         def skip_track():
             return GuardedTrack(w2c_init, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False),

@@ -48,6 +48,21 @@ class TrackResult(NamedTuple):
     iterations: jax.Array
 
 
+class TrackingProblem(NamedTuple):
+    """One frame's tracking problem, the map held fixed: the ``gaussians``, the observed ``color`` [H, W, 3] and
+    ``depth`` [H, W], the start pose ``w2c_init`` [4, 4] (in SLAM the constant-velocity prediction), ``intrinsics``,
+    ``smooth`` [] bool (render with CB-KNN: a keyframe in ``paper`` mode) and CB-KNN's motion ``gamma`` []. SLAM's
+    step builds it with :func:`gsjax.slam.system.tracking_problem`."""
+
+    gaussians: Gaussians
+    color: jax.Array
+    depth: jax.Array
+    w2c_init: jax.Array
+    intrinsics: Intrinsics
+    smooth: jax.Array
+    gamma: jax.Array
+
+
 class TrackingObjective(NamedTuple):
     """The tracker's objective around ``w2c_init``: ``view_at(delta)`` renders at ``exp(delta) @ w2c_init``,
     ``loss(delta)`` is the tracking loss there (delta [6] = (rho m, phi rad)), ``lambda_color`` its colour weight."""
@@ -57,19 +72,11 @@ class TrackingObjective(NamedTuple):
     lambda_color: jax.Array
 
 
-def tracking_objective(
-    gaussians: Gaussians,
-    color: jax.Array,
-    depth: jax.Array,
-    w2c_init: jax.Array,
-    intrinsics: Intrinsics,
-    config: SlamConfig,
-    smooth,
-    gamma,
-) -> TrackingObjective:
-    """What the tracker minimises for one frame (colour [H, W, 3], depth [H, W]) with the map held fixed;
-    ``smooth`` selects CB-KNN renders (keyframes in ``paper`` mode, with the keyframe colour weight)."""
+def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> TrackingObjective:
+    """What the tracker minimises for ``problem``; its ``smooth`` selects CB-KNN renders (keyframes in ``paper``
+    mode, with the keyframe colour weight)."""
     cfg = config.tracking
+    gaussians, color, depth, w2c_init, intrinsics, smooth, gamma = problem
     gaussians = jax.lax.stop_gradient(gaussians)
     config = dataclasses.replace(config, raster=dataclasses.replace(config.raster, pose_only=True))
     lambda_color = jnp.where(smooth, config.cbknn.lambda_color_keyframe, cfg.lambda_color) if (
@@ -87,44 +94,34 @@ def tracking_objective(
     return TrackingObjective(view_at, loss_fn, lambda_color)
 
 
-def track(
-    gaussians: Gaussians,
-    color: jax.Array,
-    depth: jax.Array,
-    w2c_init: jax.Array,
-    intrinsics: Intrinsics,
-    config: SlamConfig,
-    smooth,
-    gamma,
-) -> TrackResult:
-    """Track one frame (colour [H, W, 3], depth [H, W]) from ``w2c_init``, minimising :func:`tracking_objective`."""
+def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
+    """Track one frame from ``problem.w2c_init``, minimising :func:`tracking_objective`."""
     if config.tracking.optimizer == "lm":
         # LM's Jacobian is forward mode, which the Pallas compositing (a custom_vjp) does not have.
         config = dataclasses.replace(config, raster=config.raster.for_forward_mode())
-    objective = tracking_objective(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
-    strided = None
-    if config.tracking.strided_iters:
-        strided = strided_problem(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
+    objective = tracking_objective(problem, config)
+    strided = strided_problem(problem, config) if config.tracking.strided_iters else None
     if config.tracking.optimizer == "lm":
-        return _track_lm((objective.view_at, color, depth), objective.loss, w2c_init, config, objective.lambda_color,
-                         None if strided is None else strided(0))
-    return _track_adam(objective.loss, w2c_init, config,
+        return _track_lm((objective.view_at, problem.color, problem.depth), objective.loss, problem.w2c_init, config,
+                         objective.lambda_color, None if strided is None else strided(0))
+    return _track_adam(objective.loss, problem.w2c_init, config,
                        None if strided is None else lambda delta, phase: strided(phase)[0].loss(delta))
 
 
-def strided_problem(gaussians, color, depth, w2c_init, intrinsics: Intrinsics, config: SlamConfig, smooth, gamma):
-    """``problem(phase)`` -> (the :class:`TrackingObjective` on every other pixel, (row, col) = (phase // 2,
+def strided_problem(problem: TrackingProblem, config: SlamConfig):
+    """``on_grid(phase)`` -> (the :class:`TrackingObjective` on every other pixel, (row, col) = (phase // 2,
     phase % 2), with its loss scaled by the pixel ratio so its gradient has the full loss's scale; that colour
     [H // 2, W // 2, 3]; that depth). The render there is the full render's pixels (:func:`strided_setup`)."""
+    intrinsics = problem.intrinsics
     config = strided_setup(config, intrinsics)
     ratio = (intrinsics.height * intrinsics.width) / ((intrinsics.height // 2) * (intrinsics.width // 2))
 
-    def problem(phase):
-        color_s, depth_s, intrinsics_s = strided_frame(color, depth, intrinsics, phase)
-        objective = tracking_objective(gaussians, color_s, depth_s, w2c_init, intrinsics_s, config, smooth, gamma)
+    def on_grid(phase):
+        color_s, depth_s, intrinsics_s = strided_frame(problem.color, problem.depth, intrinsics, phase)
+        objective = tracking_objective(problem._replace(color=color_s, depth=depth_s, intrinsics=intrinsics_s), config)
         return objective._replace(loss=lambda delta: ratio * objective.loss(delta)), color_s, depth_s
 
-    return problem
+    return on_grid
 
 
 def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None) -> TrackResult:
@@ -230,24 +227,15 @@ def _diverged(result: TrackResult, w2c_init, previous_loss, config: SlamConfig) 
     return jnp.isfinite(result.loss) & (jump | ~within_step_bound(result.w2c, w2c_init, config))
 
 
-def track_guarded(
-    gaussians: Gaussians,
-    color: jax.Array,
-    depth: jax.Array,
-    w2c_init: jax.Array,
-    intrinsics: Intrinsics,
-    config: SlamConfig,
-    smooth,
-    gamma,
-    previous_loss,
-) -> GuardedTrack:
-    """:func:`track` from the constant-velocity prediction ``w2c_init``, guarded against divergence.
+def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss) -> GuardedTrack:
+    """:func:`track` from the constant-velocity prediction ``problem.w2c_init``, guarded against divergence.
 
     ``previous_loss`` []: the previous tracked frame's loss (0: none, no loss-jump test). The retry runs inside
     a ``while_loop`` of at most one pass, so it costs nothing when no frame diverges (also under ``vmap``, where a
     ``cond`` would run both sides).
     """
     cfg = config.tracking
+    w2c_init = problem.w2c_init
     if cfg.optimizer == "adam":
         # Both attempts are one traced tracker in a loop (the second with smaller steps), so the compiled program
         # holds the tracker once.
@@ -256,7 +244,7 @@ def track_guarded(
             scale = jnp.where(number == 0, 1.0, cfg.retry_lr_scale)
             scaled = dataclasses.replace(config, tracking=dataclasses.replace(
                 cfg, lr_trans=cfg.lr_trans * scale, lr_rot=cfg.lr_rot * scale))
-            result = track(gaussians, color, depth, w2c_init, intrinsics, scaled, smooth, gamma)
+            result = track(problem, scaled)
             first = jax.tree.map(lambda new, old: jnp.where(number == 0, new, old), result, first)
             return number + 1, first, result
 
@@ -264,12 +252,11 @@ def track_guarded(
             number, first, _ = carry
             return (number == 0) | ((number == 1) & _diverged(first, w2c_init, previous_loss, config))
 
-        zeros = jax.tree.map(jnp.zeros_like, jax.eval_shape(
-            lambda: track(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)))
+        zeros = jax.tree.map(jnp.zeros_like, jax.eval_shape(lambda: track(problem, config)))
         _, first, second = jax.lax.while_loop(another, attempt, (jnp.int32(0), zeros, zeros))
         retry = _diverged(first, w2c_init, previous_loss, config)
     else:
-        first = track(gaussians, color, depth, w2c_init, intrinsics, config, smooth, gamma)
+        first = track(problem, config)
         retry = _diverged(first, w2c_init, previous_loss, config)
         second = first
     ok_first = within_step_bound(first.w2c, w2c_init, config)
