@@ -12,10 +12,13 @@ import numpy as np
 import pytest
 
 from gsjax.app.cli import main
+from gsjax.data import open_sequence, write_tum
+from gsjax.data.frame import to_device
 from gsjax.slam import landscape as pure
 from gsjax.slam.driver import run as slam_run
 from gsjax.slam.losses import rendered_depth, tracking_mask
 from gsjax.slam.presets import preset, with_cbknn_mode
+from gsjax.slam.system import step
 from gsjax.slam.tracking import TrackingProblem, tracking_objective
 from slam_fixtures import CHUNK, FRAMES, relative_gt_w2c, tiny_sequence
 
@@ -134,3 +137,21 @@ def test_bad_landscape_arguments_are_one_line_errors(tmp_path, capsys, argv, mes
     assert main(["landscape", "--out", str(tmp_path / "l"), *RUN, *argv]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
+
+
+def test_without_ground_truth_the_reference_is_the_pose_slam_gives_frame_t(tmp_path):
+    """On a recording without ground truth the reference (written into landscape.json) is frame T's pose as SLAM's
+    step tracks it on the same map of frames 0..T-1: the landscape poses the tracker's own problem."""
+    data = write_tum(tiny_sequence(), tmp_path / "room")
+    (data / "groundtruth.txt").unlink()
+    out = tmp_path / "l"
+    assert main(["landscape", "--out", str(out), "--dataset", "tum", "--path", str(data), "--chunk", str(CHUNK),
+                 "--frame", str(FRAME), "--steps", "3", "--axes", "tx", "--extent-cm", "1"]) == 0
+    doc = json.loads((out / "landscape.json").read_text())
+    assert doc["reference"] == "tracked"
+    sequence = open_sequence("tum", data)
+    frames = [sequence.read_host(i) for i in range(FRAME + 1)]
+    state = slam_run(frames[:FRAME], config(), sequence.intrinsics, chunk=CHUNK).state
+    _, outputs = jax.jit(step)(state, to_device(frames[FRAME]), config(), sequence.intrinsics)
+    assert not bool(outputs.retried)
+    np.testing.assert_allclose(np.asarray(doc["reference_w2c"]), np.asarray(outputs.w2c), atol=2e-6)

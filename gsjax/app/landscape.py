@@ -108,7 +108,7 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
         reference, w2c_ref = "tracked", track(problem, config).w2c
     offsets = grid(options)
     directions = pure.directions(options.axes)
-    document = dict(frame=t, reference=reference, axes={})
+    document = dict(frame=t, reference=reference, reference_w2c=np.asarray(w2c_ref, np.float64).tolist(), axes={})
     for axis, row in zip(options.axes, offsets):
         document["axes"][axis] = dict(unit=pure.AXES[axis][1], offsets=[float(o) for o in row])
     timings = dict(map_s=map_s)
