@@ -1,11 +1,12 @@
 """Differentiable front-to-back compositing over the selected contributor slots.
 
 Everything that depends on Gaussian parameters or the pose is recomputed here with gradients
-(:func:`gsjax.raster.project.splat`, the same function the selection used, once per Gaussian) and gathered into
-the slots. (Projecting per slot from gathered raw parameters avoids the backward scatter when only the pose is
-differentiated, but measured slower on XLA:CPU in this slot-major layout, for pose-only gradients too.) Colour,
-depth (sum w z), silhouette (sum w) and depth^2 (sum w z^2) come from one pass, with blending weights
-``w_k = alpha_k prod_{j<k} (1 - alpha_j)``.
+(:func:`gsjax.raster.project.splat`, the same function the selection used): once per Gaussian and gathered into
+the slots (:func:`splat_table`, :func:`gather`), or, when only the pose is differentiated, once per slot from the
+gathered raw parameters (:func:`splat_slots`: its backward pass is elementwise, with no scatter into the Gaussians).
+Colour, depth (sum w z), silhouette (sum w) and depth^2 (sum w z^2) come from one pass, with blending weights
+``w_k = alpha_k prod_{j<k} (1 - alpha_j)``; :func:`blend` runs it on XLA or in the Pallas kernel (the backend choice
+lives here, as the selection's lives in :mod:`gsjax.raster.select`).
 
 Layout: slot-major [K, P] with one array per quantity; on XLA:CPU this vectorises several times better than
 [P, K, features], and the scan over slots runs along the leading axis.
@@ -20,6 +21,7 @@ import jax.numpy as jnp
 
 from gsjax.camera import Intrinsics
 from gsjax.gaussians import Gaussians
+from gsjax.raster import pallas
 from gsjax.raster.project import DILATION, Splat, gaussian_alpha, sanitized, splat, to_camera
 
 
@@ -127,3 +129,14 @@ def composite(weights: jax.Array, r: jax.Array, g: jax.Array, b: jax.Array, dept
         silhouette=jnp.sum(weights, 0),
         depth_sq=jnp.sum(wz * depth, 0),
     )
+
+
+def blend(alpha: jax.Array, r: jax.Array, g: jax.Array, b: jax.Array, depth: jax.Array,
+          use_pallas: bool) -> tuple[Composite, jax.Array]:
+    """Composite slots [K, P] front to back -> (Composite, final transmittance [P]): :func:`blend_weights` and
+    :func:`composite` on XLA, or the fused Pallas kernel (:func:`gsjax.raster.pallas.composite_slots`)."""
+    if use_pallas:
+        cr, cg, cb, d, sil, dsq, final = pallas.composite_slots(alpha, r, g, b, depth)
+        return Composite(jnp.stack([cr, cg, cb], axis=-1), d, sil, dsq), final
+    weights, final = blend_weights(alpha)
+    return composite(weights, r, g, b, depth), final

@@ -19,7 +19,7 @@ from gsjax.gaussians import Gaussians, check_gaussians
 from gsjax.raster import cbknn as cb
 from gsjax.raster import pallas
 from gsjax.raster.binning import TileGrid, bin_gaussians
-from gsjax.raster.composite import Composite, blend_weights, composite, gather, slot_alpha, splat_slots, splat_table
+from gsjax.raster.composite import blend, blend_weights, gather, slot_alpha, splat_slots, splat_table
 from gsjax.raster.project import DILATION, project
 from gsjax.raster.select import select_contributors
 
@@ -319,15 +319,6 @@ def _render(
     )
 
 
-def _blend(alpha, r, g, b, depth, use_pallas: bool) -> tuple[Composite, jax.Array]:
-    """Composite slots [K, P] front to back -> (Composite, final transmittance [P])."""
-    if use_pallas:
-        cr, cg, cb_, d, sil, dsq, final = pallas.composite_slots(alpha, r, g, b, depth)
-        return Composite(jnp.stack([cr, cg, cb_], axis=-1), d, sil, dsq), final
-    weights, final = blend_weights(alpha)
-    return composite(weights, r, g, b, depth), final
-
-
 def _composite_pixels(source, ids, pixels, in_image, k_pixel, cbknn, use_pallas: bool):
     """Slots, alpha and blend of pixels [P] with slots ``ids`` [K, P] (``source(ids)`` gives the :class:`Slots`);
     CB-KNN (method_spec D.5, D.7) when ``cbknn``. Returns (Composite, canonical final transmittance [P], CB-KNN
@@ -335,12 +326,12 @@ def _composite_pixels(source, ids, pixels, in_image, k_pixel, cbknn, use_pallas:
     slots = source(ids)
     alpha = slot_alpha(slots, pixels)
     if cbknn is None:
-        out, final = _blend(alpha, slots.r, slots.g, slots.b, slots.depth, use_pallas)
+        out, final = blend(alpha, slots.r, slots.g, slots.b, slots.depth, use_pallas)
         return out, final, jnp.float32(0.0), jnp.int32(0)
     # CB-KNN needs the canonical weights themselves (consensus colour, top-weight selection).
     weights, final = blend_weights(alpha)
     corrected = cb.correct_slots(slots, pixels, alpha, weights, k_pixel, cbknn)
-    out, _ = _blend(corrected.alpha, corrected.r, corrected.g, corrected.b, slots.depth, use_pallas)
+    out, _ = blend(corrected.alpha, corrected.r, corrected.g, corrected.b, slots.depth, use_pallas)
     shift_sum = jnp.sum(jnp.where(in_image[None, :], corrected.shift_px, 0.0))
     return out, final, shift_sum, jnp.sum(corrected.corrected & in_image[None, :], dtype=jnp.int32)
 
