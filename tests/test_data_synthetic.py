@@ -158,3 +158,24 @@ def test_tum_round_trip_preserves_frames_within_quantisation(tmp_path):
         np.testing.assert_allclose(np.asarray(b.depth), np.asarray(a.depth), atol=0.5 / 5000 + 1e-6)
         np.testing.assert_array_equal(np.asarray(b.depth) == 0, np.asarray(a.depth) == 0)
 
+
+
+def test_open_sequence_opens_the_synthetic_room_like_a_dataset(tmp_path):
+    """``open_sequence("synthetic", ...)``: the generator's sequence with the size reduced by ``downscale``, the
+    motion sped up by ``stride``, 30 frames by default, sensor noise on request; what only files have is refused."""
+    opened = open_sequence("synthetic", max_frames=3, stride=2, downscale=4, sensor_noise=True, seed=5)
+    direct = synthetic_sequence(SyntheticConfig(width=40, height=30, num_frames=3, speed=2.0, seed=5)
+                                .with_sensor_noise())
+    assert len(opened) == 3 and opened.intrinsics == direct.intrinsics
+    for i in range(3):
+        np.testing.assert_array_equal(opened.read_host(i).color, direct.read_host(i).color)
+        np.testing.assert_array_equal(opened.read_host(i).depth, direct.read_host(i).depth)
+    assert len(open_sequence("synthetic")) == 30
+    with pytest.raises(ValueError, match="downscale 7 must divide"):
+        open_sequence("synthetic", downscale=7)
+    with pytest.raises(ValueError, match="generated"):
+        open_sequence("synthetic", tmp_path)
+    with pytest.raises(ValueError, match="synthetic sequence only"):
+        open_sequence("tum", tmp_path, sensor_noise=True)
+    with pytest.raises(ValueError, match="needs its directory"):
+        open_sequence("tum")

@@ -1,6 +1,6 @@
 """Datasets: the :class:`Frame` pytree, lazily read :class:`Sequence` s, readers, and synthetic scenes.
 
-``open_sequence`` is the one entry point for data on disk::
+``open_sequence`` is the one entry point for data on disk and for the synthetic room::
 
     seq = open_sequence("tum", "data/rgbd_dataset_freiburg1_desk", max_frames=100, downscale=2)
     for chunk in seq.chunks(16):   # Frame with a leading axis of 16, for lax.scan
@@ -25,14 +25,16 @@ from gsjax.data.sequence import Sequence
 from gsjax.data.sevenscenes import list_sevenscenes
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.data.tum import list_tum, write_tum
+from gsjax.names import SYNTHETIC
 
 # One reader per name of gsjax.names.DATASETS (tests check the two agree).
 READERS = {"tum": list_tum, "replica": list_replica, "scannet": list_scannet, "7scenes": list_sevenscenes}
+SYNTHETIC_FRAMES = 30  # frames of the synthetic sequence unless max_frames says otherwise
 
 
 def open_sequence(
     dataset: str,
-    path: str | Path,
+    path: str | Path | None = None,
     *,
     max_frames: int | None = None,
     stride: int = 1,
@@ -41,11 +43,15 @@ def open_sequence(
     intrinsics: GivenIntrinsics = None,
     depth_scale: float | None = None,
     register_color: bool = True,
+    sensor_noise: bool = False,
+    seed: int = 0,
 ) -> Sequence:
     """Open an RGB-D sequence stored in a dataset's own layout; frames are read only when accessed.
 
     Args:
-      dataset: "tum", "replica", "scannet" or "7scenes".
+      dataset: "tum", "replica", "scannet", "7scenes", or "synthetic": the ray-cast room
+        (:mod:`gsjax.data.synthetic`, 160x120 before ``downscale``, :data:`SYNTHETIC_FRAMES` frames unless
+        ``max_frames`` says otherwise; ``stride`` speeds its motion up; no path, camera or depth-scale overrides).
       path: the sequence directory (TUM: the one holding rgb.txt; Replica: the scene folder holding results/).
       max_frames: keep at most this many frames (after start and stride).
       stride: keep every stride-th frame.
@@ -58,6 +64,8 @@ def open_sequence(
         Replica 6553.5).
       register_color: resample colour into the depth camera where the reader knows the two are not registered
         (7-Scenes; see :mod:`gsjax.data.sevenscenes`); False reads colour as stored.
+      sensor_noise, seed: synthetic only: Kinect-like sensor effects (:meth:`SyntheticConfig.with_sensor_noise`)
+        and their seed.
 
     Returns:
       A :class:`Sequence` whose ``intrinsics`` are the downscaled ones.
@@ -71,8 +79,16 @@ def open_sequence(
       with repeated timestamps (repeats dropped), unpaired TUM images (skipped), ground-truth poses that are not
       finite or not rigid (left out of the evaluation).
     """
+    if dataset == SYNTHETIC:
+        if path is not None or intrinsics is not None or depth_scale is not None or start:
+            raise ValueError("the synthetic sequence is generated: no path, intrinsics, depth_scale or start")
+        return _synthetic(max_frames, stride, downscale, sensor_noise, seed)
     if dataset not in READERS:
-        raise ValueError(f"unknown dataset {dataset!r}; expected one of {', '.join(READERS)}")
+        raise ValueError(f"unknown dataset {dataset!r}; expected one of {', '.join(READERS)}, {SYNTHETIC}")
+    if sensor_noise:
+        raise ValueError("sensor_noise applies to the synthetic sequence only")
+    if path is None:
+        raise ValueError(f"the {dataset} sequence needs its directory (path)")
     if depth_scale is not None and not (isinstance(depth_scale, (int, float)) and math.isfinite(depth_scale)
                                         and depth_scale > 0):
         raise ValueError(f"depth_scale must be a finite number > 0 (raw units per metre), got {depth_scale!r}")
@@ -85,6 +101,15 @@ def open_sequence(
     if not register_color:
         files = dataclasses.replace(files, color_camera=None)
     return sequence_from_files(files, path, start=start, stride=stride, max_frames=max_frames, downscale=downscale)
+
+
+def _synthetic(max_frames: int | None, stride: int, downscale: int, sensor_noise: bool, seed: int) -> Sequence:
+    base = SyntheticConfig()
+    if downscale < 1 or base.width % downscale or base.height % downscale:
+        raise ValueError(f"downscale {downscale} must divide the synthetic {base.width}x{base.height} image")
+    config = SyntheticConfig(width=base.width // downscale, height=base.height // downscale,
+                             num_frames=max_frames or SYNTHETIC_FRAMES, speed=float(stride), seed=seed)
+    return synthetic_sequence(config.with_sensor_noise() if sensor_noise else config)
 
 
 __all__ = [

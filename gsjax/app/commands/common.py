@@ -9,7 +9,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from gsjax.names import CBKNN_MODES, DATASETS, PRESETS
+from gsjax.names import CBKNN_MODES, DATASETS, PRESETS, SYNTHETIC
 
 
 class UserError(Exception):
@@ -49,7 +49,6 @@ COMMON = argparse.ArgumentParser(add_help=False)
 COMMON.add_argument("--debug", action="store_true", help="show the full traceback of an error")
 
 
-SYNTHETIC_FRAMES = 30  # frames of `gsjax run --dataset synthetic` unless --max-frames says otherwise
 
 
 def port(text: str) -> int:
@@ -64,7 +63,7 @@ def port(text: str) -> int:
 
 def add_sequence_flags(p) -> None:
     """The flags that choose the sequence, its camera and the config (shared by run, sweep and landscape)."""
-    p.add_argument("--dataset", choices=DATASETS + ("synthetic",), required=True)
+    p.add_argument("--dataset", choices=DATASETS + (SYNTHETIC,), required=True)
     p.add_argument("--path", type=Path, default=None, help="dataset directory (not needed for synthetic)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--preset", choices=PRESETS, default="cpu", help="configuration preset (default cpu)")
@@ -132,33 +131,22 @@ def open_run_sequence(args):
         raise UserError("--stride and --max-frames must be >= 1")
     if args.downscale is not None and args.downscale < 1:
         raise UserError(f"--downscale must be >= 1, got {args.downscale}")
-    if args.dataset == "synthetic":
+    from gsjax.data import open_sequence
+
+    if args.dataset == SYNTHETIC:
         for flag, value in (("--intrinsics", args.intrinsics), ("--depth-scale", args.depth_scale)):
             if value is not None:
                 raise UserError(f"{flag} applies to datasets read from disk; the synthetic scene has its own camera")
-        from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
-
-        base = SyntheticConfig()
-        factor = args.downscale or working_downscale(args.preset, base.width)
-        if factor < 1 or base.width % factor or base.height % factor:
-            raise UserError(f"--downscale {factor} must divide the synthetic {base.width}x{base.height} image")
-        frames = args.max_frames or SYNTHETIC_FRAMES
-        config = SyntheticConfig(width=base.width // factor, height=base.height // factor, num_frames=frames,
-                                 speed=float(args.stride), seed=args.seed)
+        source = dict(sensor_noise=args.synthetic_noise, seed=args.seed)
+    else:
         if args.synthetic_noise:
-            config = config.with_sensor_noise()
-        return synthetic_sequence(config), factor
-    from gsjax.data import open_sequence
-
-    if args.synthetic_noise:
-        raise UserError("--synthetic-noise applies to --dataset synthetic only")
-    if args.path is None:
-        raise UserError(f"--dataset {args.dataset} needs --path DIR")
-    if not args.path.is_dir():
-        raise UserError(f"--path {args.path}: no such directory")
-    camera = dict(intrinsics=args.intrinsics, depth_scale=args.depth_scale)
-    probe = open_sequence(args.dataset, args.path, max_frames=1, **camera)
-    native = probe.intrinsics
+            raise UserError("--synthetic-noise applies to --dataset synthetic only")
+        if args.path is None:
+            raise UserError(f"--dataset {args.dataset} needs --path DIR")
+        if not args.path.is_dir():
+            raise UserError(f"--path {args.path}: no such directory")
+        source = dict(path=args.path, intrinsics=args.intrinsics, depth_scale=args.depth_scale)
+    native = open_sequence(args.dataset, max_frames=1, **source).intrinsics
     if args.intrinsics is not None and not (0 <= args.intrinsics[2] <= native.width
                                             and 0 <= args.intrinsics[3] <= native.height):
         raise UserError(f"--intrinsics: the principal point ({args.intrinsics[2]:g}, {args.intrinsics[3]:g}) lies "
@@ -167,8 +155,8 @@ def open_run_sequence(args):
     factor = args.downscale or working_downscale(args.preset, native.width)
     if factor > min(native.width, native.height):
         raise UserError(f"--downscale {factor} leaves no pixel of the {native.width}x{native.height} images")
-    sequence = open_sequence(args.dataset, args.path, max_frames=args.max_frames, stride=args.stride,
-                             downscale=factor, **camera)
+    sequence = open_sequence(args.dataset, max_frames=args.max_frames, stride=args.stride, downscale=factor,
+                             **source)
     return sequence, factor
 
 
