@@ -1,4 +1,5 @@
-"""Pinhole intrinsics and SE(3) pose helpers.
+"""Pinhole intrinsics and SE(3) pose helpers: the one home of gsjax's pose and rotation conventions, in jnp (traced)
+and, at the end, the same formulas in numpy float64 for the host side (trajectory files, evaluation, the viewer).
 
 Conventions (fixed once for all of gsjax, DESIGN 2.2.1):
 
@@ -168,34 +169,13 @@ def so3_exp(phi: jax.Array) -> jax.Array:
 
 
 def rotation_to_quaternion(rotation: jax.Array) -> jax.Array:
-    """Rotation matrix [3, 3] -> unit quaternion [4] (w, x, y, z) with w >= 0 (Shepperd's method)."""
-    r = rotation
-    trace = r[0, 0] + r[1, 1] + r[2, 2]
-    # Four candidate formulas; each is well conditioned when its pivot is the largest.
-    cands = jnp.stack(
-        [
-            jnp.stack([1.0 + trace, r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]]),
-            jnp.stack([r[2, 1] - r[1, 2], 1.0 + r[0, 0] - r[1, 1] - r[2, 2], r[0, 1] + r[1, 0], r[0, 2] + r[2, 0]]),
-            jnp.stack([r[0, 2] - r[2, 0], r[0, 1] + r[1, 0], 1.0 - r[0, 0] + r[1, 1] - r[2, 2], r[1, 2] + r[2, 1]]),
-            jnp.stack([r[1, 0] - r[0, 1], r[0, 2] + r[2, 0], r[1, 2] + r[2, 1], 1.0 - r[0, 0] - r[1, 1] + r[2, 2]]),
-        ]
-    )
-    pivots = jnp.stack([trace, r[0, 0], r[1, 1], r[2, 2]])
-    q = cands[jnp.argmax(pivots)]
-    q = q / jnp.linalg.norm(q)
-    return jnp.where(q[0] < 0, -q, q)
+    """Rotation matrices [..., 3, 3] -> unit quaternions [..., 4] (w, x, y, z) with w >= 0 (Shepperd's method)."""
+    return _shepperd(rotation, jnp)
 
 
 def quaternion_to_rotation(quat: jax.Array) -> jax.Array:
-    """Quaternion [4] (w, x, y, z), normalised here, -> rotation matrix [3, 3]."""
-    w, x, y, z = quat / jnp.linalg.norm(quat)
-    return jnp.stack(
-        [
-            jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
-            jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
-            jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
-        ]
-    )
+    """Quaternions [..., 4] (w, x, y, z), normalised here, -> rotation matrices [..., 3, 3]."""
+    return _quaternion_matrix(quat / jnp.linalg.norm(quat, axis=-1, keepdims=True), jnp)
 
 
 def so3_log(rotation: jax.Array) -> jax.Array:
@@ -287,3 +267,73 @@ def rigidity_error(transform: jax.Array) -> jax.Array:
     det = xp.abs(xp.linalg.det(rot) - 1.0)
     last = xp.max(xp.abs(transform[..., 3, :] - xp.array([0.0, 0.0, 0.0, 1.0], dtype=transform.dtype)), axis=-1)
     return xp.maximum(xp.maximum(ortho, det), last)
+
+
+# --------------------------------------------------- the same conventions in numpy float64 (host side: files, eval)
+
+
+def rotation_to_quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
+    """Rotation matrices [..., 3, 3] -> unit quaternions [..., 4] (w, x, y, z), w >= 0, float64: the formula of
+    :func:`rotation_to_quaternion`."""
+    return _shepperd(np.asarray(rotation, np.float64), np)
+
+
+def quaternion_wxyz_to_rotation(quat: np.ndarray) -> np.ndarray:
+    """Unit quaternions [..., 4] (w, x, y, z) -> rotation matrices [..., 3, 3], float64: the formula of
+    :func:`quaternion_to_rotation`, without its normalisation (the readers normalise what they read)."""
+    return _quaternion_matrix(np.asarray(quat, np.float64), np)
+
+
+def invert_rigid(transform: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms [..., 4, 4] via ``R^T`` (float64): :func:`se3_inverse` batched."""
+    transform = np.asarray(transform, np.float64)
+    rot_t = np.swapaxes(transform[..., :3, :3], -1, -2)
+    out = np.zeros_like(transform)
+    out[..., :3, :3] = rot_t
+    out[..., :3, 3] = -(rot_t @ transform[..., :3, 3, None])[..., 0]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def rotation_angle_rad(rotation: np.ndarray) -> np.ndarray:
+    """Rotation angle (rad, in [0, pi]) of rotation matrices [..., 3, 3], float64; accurate at small angles (atan2
+    of the sine from the skew part and the cosine from the trace)."""
+    r = np.asarray(rotation, np.float64)
+    cos = 0.5 * (r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1.0)
+    skew = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1)
+    return np.arctan2(0.5 * np.linalg.norm(skew, axis=-1), cos)
+
+
+def _quaternion_matrix(quat, xp):
+    """Unit quaternions [..., 4] (w, x, y, z) -> rotation matrices [..., 3, 3] (``xp``: jnp or numpy)."""
+    w, x, y, z = (quat[..., i] for i in range(4))
+    return xp.stack(
+        [
+            xp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            xp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            xp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def _shepperd(r, xp):
+    """Rotation matrices [..., 3, 3] -> unit quaternions [..., 4] (w, x, y, z), w >= 0 (``xp``: jnp or numpy)."""
+    trace = r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2]
+    candidates = xp.stack(
+        [
+            xp.stack([1.0 + trace, r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
+                      r[..., 1, 0] - r[..., 0, 1]], -1),
+            xp.stack([r[..., 2, 1] - r[..., 1, 2], 1.0 + r[..., 0, 0] - r[..., 1, 1] - r[..., 2, 2],
+                      r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0]], -1),
+            xp.stack([r[..., 0, 2] - r[..., 2, 0], r[..., 0, 1] + r[..., 1, 0],
+                      1.0 - r[..., 0, 0] + r[..., 1, 1] - r[..., 2, 2], r[..., 1, 2] + r[..., 2, 1]], -1),
+            xp.stack([r[..., 1, 0] - r[..., 0, 1], r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1],
+                      1.0 - r[..., 0, 0] - r[..., 1, 1] + r[..., 2, 2]], -1),
+        ],
+        -2,
+    )  # [..., 4 candidates, 4]; each is well conditioned when its pivot is the largest
+    pivot = xp.argmax(xp.stack([trace, r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]], -1), axis=-1)
+    q = xp.take_along_axis(candidates, pivot[..., None, None], axis=-2)[..., 0, :]
+    q = q / xp.linalg.norm(q, axis=-1, keepdims=True)
+    return xp.where(q[..., :1] < 0, -q, q)

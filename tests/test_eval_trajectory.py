@@ -11,6 +11,7 @@ import pytest
 from evo.core import sync
 from evo.core.trajectory import PoseTrajectory3D
 
+from gsjax.camera import invert_rigid, quaternion_wxyz_to_rotation, rotation_angle_rad
 from gsjax.eval.association import associate_timestamps
 from gsjax.eval.trajectory import (
     Alignment,
@@ -18,12 +19,9 @@ from gsjax.eval.trajectory import (
     ate_splatam_mean_w2c,
     evaluate_trajectory,
     ground_truth_on_estimate,
-    invert_rigid,
-    rotation_angle_rad,
     rpe,
     umeyama_alignment,
 )
-from gsjax.io.trajectory import quaternion_wxyz_to_rotation
 
 
 def random_rotation(rng, n=None):

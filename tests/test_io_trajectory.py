@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsjax.camera import quaternion_to_rotation, rotation_to_quaternion
-from gsjax.io.trajectory import (
+from gsjax.camera import (
     quaternion_wxyz_to_rotation,
-    read_tum_trajectory,
-    rotation_to_quaternion_wxyz,
-    write_tum_trajectory,
 )
+from gsjax.io.trajectory import read_tum_trajectory, write_tum_trajectory
 
 
 def random_c2w(rng, n):
@@ -42,23 +38,6 @@ def test_evo_reads_our_files_as_the_same_poses(tmp_path):
     write_tum_trajectory(tmp_path / "t.txt", np.arange(20) * 0.1, c2w)
     traj = file_interface.read_tum_trajectory_file(str(tmp_path / "t.txt"))
     np.testing.assert_allclose(np.stack(traj.poses_se3), c2w, atol=1e-12)
-
-
-def test_quaternion_conventions_match_gsjax_camera():
-    rng = np.random.default_rng(2)
-    q = rng.standard_normal((200, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    q[:4] = [[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [1e-9, 0.6, 0.8, 0]]  # 180 deg turns: every Shepperd branch
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    rot = quaternion_wxyz_to_rotation(q)
-    for qi, ri in zip(q[::10], rot[::10]):
-        np.testing.assert_allclose(ri, np.asarray(quaternion_to_rotation(jnp.asarray(qi, jnp.float32))), atol=1e-6)
-        np.testing.assert_allclose(
-            rotation_to_quaternion_wxyz(ri), np.asarray(rotation_to_quaternion(jnp.asarray(ri, jnp.float32))), atol=1e-6
-        )
-    back = rotation_to_quaternion_wxyz(rot)
-    np.testing.assert_allclose(quaternion_wxyz_to_rotation(back), rot, atol=1e-14)
-    assert np.all(back[:, 0] >= 0)
 
 
 def test_reader_skips_comments_blank_lines_and_normalises_quaternions(tmp_path):

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.camera import Intrinsics, make_intrinsics
+from gsjax.camera import Intrinsics, make_intrinsics, quaternion_wxyz_to_rotation
 from gsjax.data.frame import DatasetError, DatasetWarning
 from gsjax.data.images import image_size
 from gsjax.data.listing import FrameFiles, GivenIntrinsics, given_intrinsics, read_json_numbers
@@ -37,7 +37,7 @@ from gsjax.data.poses import data_lines, parse_numbers, warn_bad_poses
 from gsjax.data.sequence import Sequence
 from gsjax.eval.association import associate_timestamps
 from gsjax.io.atomic import atomic_write_json, atomic_write_text
-from gsjax.io.trajectory import quaternion_wxyz_to_rotation, write_tum_trajectory
+from gsjax.io.trajectory import write_tum_trajectory
 
 DEPTH_SCALE = 5000.0  # raw units per metre
 MAX_TIME_DIFFERENCE = 0.02  # s, for colour-depth and colour-groundtruth association

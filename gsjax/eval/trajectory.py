@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from gsjax.camera import invert_rigid, rotation_angle_rad
 from gsjax.eval.association import associate_timestamps
 
 # Fewest frames for which a 3D rigid alignment is determined (non-collinear points).
@@ -110,27 +111,6 @@ def _mean(x: np.ndarray) -> float:
 
 
 # ---------------------------------------------------------------------------------------------- geometry
-
-
-def invert_rigid(transform: np.ndarray) -> np.ndarray:
-    """Inverse of rigid transforms [..., 4, 4] via ``R^T`` (float64)."""
-    transform = np.asarray(transform, np.float64)
-    rot_t = np.swapaxes(transform[..., :3, :3], -1, -2)
-    out = np.zeros_like(transform)
-    out[..., :3, :3] = rot_t
-    out[..., :3, 3] = -(rot_t @ transform[..., :3, 3, None])[..., 0]
-    out[..., 3, 3] = 1.0
-    return out
-
-
-def rotation_angle_rad(rotation: np.ndarray) -> np.ndarray:
-    """Rotation angle (rad, in [0, pi]) of rotation matrices [..., 3, 3]; accurate at small angles (atan2 of the
-    sine from the skew part and the cosine from the trace)."""
-    r = np.asarray(rotation, np.float64)
-    cos = 0.5 * (r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1.0)
-    skew = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1)
-    sin = 0.5 * np.linalg.norm(skew, axis=-1)
-    return np.arctan2(sin, cos)
 
 
 def umeyama_alignment(source: np.ndarray, target: np.ndarray, with_scale: bool = False) -> Alignment:

@@ -12,45 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from gsjax.camera import quaternion_wxyz_to_rotation, rotation_to_quaternion_wxyz
 from gsjax.io.atomic import atomic_write_text
 
 HEADER = "# timestamp tx ty tz qx qy qz qw (camera-to-world, metres)\n"
-
-
-def quaternion_wxyz_to_rotation(quat: np.ndarray) -> np.ndarray:
-    """Unit quaternions [..., 4] (w, x, y, z) -> rotation matrices [..., 3, 3] (float64)."""
-    w, x, y, z = np.moveaxis(np.asarray(quat, np.float64), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def rotation_to_quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
-    """Rotation matrices [..., 3, 3] -> unit quaternions [..., 4] (w, x, y, z) with w >= 0 (Shepperd's method)."""
-    r = np.asarray(rotation, np.float64)
-    trace = r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2]
-    candidates = np.stack(
-        [
-            np.stack([1 + trace, r[..., 2, 1] - r[..., 1, 2],
-                      r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1),
-            np.stack([r[..., 2, 1] - r[..., 1, 2], 1 + r[..., 0, 0] - r[..., 1, 1] - r[..., 2, 2],
-                      r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0]], -1),
-            np.stack([r[..., 0, 2] - r[..., 2, 0], r[..., 0, 1] + r[..., 1, 0],
-                      1 - r[..., 0, 0] + r[..., 1, 1] - r[..., 2, 2], r[..., 1, 2] + r[..., 2, 1]], -1),
-            np.stack([r[..., 1, 0] - r[..., 0, 1], r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1],
-                      1 - r[..., 0, 0] - r[..., 1, 1] + r[..., 2, 2]], -1),
-        ],
-        -2,
-    )  # [..., 4 candidates, 4]; each is well conditioned when its pivot is the largest
-    pivot = np.argmax(np.stack([trace, r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]], -1), axis=-1)
-    q = np.take_along_axis(candidates, pivot[..., None, None], axis=-2)[..., 0, :]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
 
 
 def read_tum_trajectory(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:

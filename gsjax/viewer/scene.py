@@ -20,8 +20,8 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
+from gsjax.camera import rotation_to_quaternion_wxyz
 from gsjax.gaussians import Gaussians
-from gsjax.io.trajectory import rotation_to_quaternion_wxyz
 
 ESTIMATE_RGB = (31, 119, 180)
 GROUND_TRUTH_RGB = (40, 40, 40)
