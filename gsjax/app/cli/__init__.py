@@ -1,9 +1,11 @@
 """The ``gsjax`` command line: the imperative shell around the pure core.
 
-Each subcommand is a module of :mod:`gsjax.app.commands` with ``add(subparsers)``, which declares its flags, and
+Each subcommand is a module of this package with ``add(subparsers)``, which declares its flags, and
 ``run(args)``, which runs it. Heavy imports happen inside ``run`` so ``gsjax --help`` stays fast. User errors (bad
 paths, bad values, bad data) are reported as one line ``gsjax <cmd>: error: ...`` with exit status 2, never a stack
 trace (``--debug`` shows it); what gsjax handles in a defined way is printed as ``warning: ...``.
+:mod:`~gsjax.app.cli.common` holds what the commands share (argument types, the common flags, opening a run's
+sequence).
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from gsjax.app.commands import (
+from gsjax.app.cli import (
     bench,
     evaluate,
     landscape,
@@ -21,7 +23,7 @@ from gsjax.app.commands import (
     synth,
     view,
 )
-from gsjax.app.commands.common import Parser, UserError, parse_overrides
+from gsjax.app.cli.common import Parser, UserError, parse_overrides
 
 COMMANDS = (run, sweep, landscape, report, view, bench, evaluate, synth)
 

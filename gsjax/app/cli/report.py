@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gsjax.app.commands.common import COMMON
+from gsjax.app.cli.common import COMMON
 
 
 def add(sub) -> None:

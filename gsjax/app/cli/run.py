@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from gsjax.app.commands.common import (
+from gsjax.app.cli.common import (
     COMMON,
     add_sequence_flags,
     configure,
