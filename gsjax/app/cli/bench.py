@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gsjax.app.cli.common import COMMON, UserError, backends, positive, sizes
+from gsjax.app.cli import common
 
 
 def add(sub) -> None:
@@ -14,15 +14,15 @@ def add(sub) -> None:
         "compile time apart), ns per pixel x candidate and the peak memory of a tracking iteration, for each "
         "backend and image size, on a SplaTAM-density map of a synthetic room. Prints a table and writes JSON. "
         "On a CPU the pallas backend runs in interpret mode (slow: a correctness aid, not a speed).",
-        parents=[COMMON])
-    p.add_argument("--backend", type=backends, default=None, metavar="LIST",
+        parents=[common.COMMON])
+    p.add_argument("--backend", type=common.backends, default=None, metavar="LIST",
                    help="comma-separated backends: xla, pallas (default: xla,pallas on a GPU, xla elsewhere)")
-    p.add_argument("--sizes", type=sizes, default=[(640, 480), (1200, 680)], metavar="WxH,...",
+    p.add_argument("--sizes", type=common.sizes, default=[(640, 480), (1200, 680)], metavar="WxH,...",
                    help="image sizes (default 640x480,1200x680)")
-    p.add_argument("--gaussians", type=positive, default=None, metavar="N",
+    p.add_argument("--gaussians", type=common.positive, default=None, metavar="N",
                    help="active Gaussians in the map (default: about one per pixel, SplaTAM's density)")
-    p.add_argument("--k", type=positive, default=96, help="contributor slots per pixel (default 96, SLAM's)")
-    p.add_argument("--repeats", type=positive, default=5, help="timed runs after the warm-up (default 5)")
+    p.add_argument("--k", type=common.positive, default=96, help="contributor slots per pixel (default 96, SLAM's)")
+    p.add_argument("--repeats", type=common.positive, default=5, help="timed runs after the warm-up (default 5)")
     p.add_argument("--out", type=Path, default=Path("bench.json"), help="the JSON to write (default bench.json)")
     p.set_defaults(func=run)
 
@@ -33,7 +33,7 @@ def run(args) -> int:
     from gsjax.raster import pallas
 
     if args.out.is_dir():
-        raise UserError(f"--out {args.out} is a directory; give the JSON file to write")
+        raise common.UserError(f"--out {args.out} is a directory; give the JSON file to write")
     backends = args.backend or (["xla", "pallas"] if pallas.on_gpu() else ["xla"])
     result = run_bench(backends, args.sizes, args.gaussians, args.repeats, args.k,
                        log=lambda line: print(line, flush=True))

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gsjax.app.cli.common import COMMON, UserError, dataset_warnings
+from gsjax.app.cli import common
 from gsjax.names import DATASETS
 
 
 def add(sub) -> None:
     p = sub.add_parser("eval", help="trajectory metrics (ATE, RPE) of an estimate against ground truth",
-                       parents=[COMMON])
+                       parents=[common.COMMON])
     p.add_argument("--est", type=Path, required=True, help="estimated trajectory, TUM format (camera-to-world)")
     p.add_argument("--gt", type=Path, required=True,
                    help="ground truth: a TUM trajectory file, or a dataset directory (with --dataset)")
@@ -28,17 +28,17 @@ def _read_ground_truth(gt: Path, dataset: str | None):
     """(timestamps [M] s, c2w [M, 4, 4] float64, valid [M] bool or None) from a TUM file or a dataset directory."""
     if gt.is_dir():
         if dataset is None:
-            raise UserError(
+            raise common.UserError(
                 f"--gt {gt} is a directory: --gt DIR needs --dataset {{{','.join(DATASETS)}}} "
                 f"(the layout is not guessed), or give a TUM trajectory file"
             )
         from gsjax.data import open_sequence
 
-        return dataset_warnings(lambda: open_sequence(dataset, gt).gt_trajectory())[0]  # reads no image
+        return common.dataset_warnings(lambda: open_sequence(dataset, gt).gt_trajectory())[0]  # reads no image
     if not gt.is_file():
-        raise UserError(f"--gt {gt}: no such file")
+        raise common.UserError(f"--gt {gt}: no such file")
     if dataset is not None:
-        raise UserError(f"--dataset {dataset} needs --gt DIR, a dataset directory; {gt} is a file")
+        raise common.UserError(f"--dataset {dataset} needs --gt DIR, a dataset directory; {gt} is a file")
     from gsjax.io.trajectory import read_tum_trajectory
 
     return (*read_tum_trajectory(gt), None)
@@ -53,9 +53,9 @@ def run(args) -> int:
     from gsjax.io.trajectory import read_tum_trajectory
 
     if not args.est.is_file():
-        raise UserError(f"--est {args.est}: no such file")
+        raise common.UserError(f"--est {args.est}: no such file")
     if not (np.isfinite(args.max_dt) and args.max_dt >= 0):
-        raise UserError(f"--max-dt must be a number >= 0, got {args.max_dt}")
+        raise common.UserError(f"--max-dt must be a number >= 0, got {args.max_dt}")
     gt_t, gt_c2w, gt_valid = _read_ground_truth(args.gt, args.dataset)
     est_t, est_c2w = read_tum_trajectory(args.est)
     metrics = evaluate_trajectory(

@@ -2,15 +2,7 @@
 
 from __future__ import annotations
 
-from gsjax.app.cli.common import (
-    COMMON,
-    add_sequence_flags,
-    configure,
-    dataset_warnings,
-    describe_run,
-    open_run_sequence,
-    quiet_logs,
-)
+from gsjax.app.cli import common
 
 
 def add(sub) -> None:
@@ -22,9 +14,9 @@ def add(sub) -> None:
         "its tracked pose) along each axis (tx ty tz in cm, rx ry rz in degrees), with jax.grad at every grid point, "
         "for CB-KNN off and paper; and the basin: how far off the tracker still returns to within 0.5 cm / 0.5 deg. "
         "Writes landscape.json and landscape.png.",
-        parents=[COMMON],
+        parents=[common.COMMON],
     )
-    add_sequence_flags(p)
+    common.add_sequence_flags(p)
     p.add_argument("--frame", type=int, required=True, help="the frame T whose tracking loss is studied (>= 1)")
     p.add_argument("--axes", default="tx,ry", help="comma-separated axes among tx,ty,tz,rx,ry,rz (default tx,ry)")
     p.add_argument("--extent-cm", type=float, default=4.0, help="translation grid half-width (cm, default 4)")
@@ -41,17 +33,17 @@ def run(args) -> int:
     from gsjax.app.landscape import LandscapeOptions, run_landscape
     from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir
 
-    quiet_logs()
-    configure(args)  # bad overrides are reported before any data is read
+    common.quiet_logs()
+    common.configure(args)  # bad overrides are reported before any data is read
     options = LandscapeOptions(out=args.out, frame=args.frame, axes=tuple(a.strip() for a in args.axes.split(",")),
                                extent_cm=args.extent_cm, extent_deg=args.extent_deg, steps=args.steps,
                                map_from=args.map_from, seed=args.seed, chunk=args.chunk, overwrite=args.overwrite)
     check_run_dir(args.out, overwrite=args.overwrite, outputs=LANDSCAPE_OUTPUTS)
     if args.max_frames is None:
         args.max_frames = args.frame + 1  # frames past T are not read
-    (sequence, factor), _ = dataset_warnings(lambda: open_run_sequence(args))
-    describe = describe_run(args, sequence, factor)
-    document = run_landscape(sequence, configure(args, sequence.intrinsics.width), options, describe=describe)
+    (sequence, factor), _ = common.dataset_warnings(lambda: common.open_run_sequence(args))
+    describe = common.describe_run(args, sequence, factor)
+    document = run_landscape(sequence, common.configure(args, sequence.intrinsics.width), options, describe=describe)
     for axis, entry in document["axes"].items():
         print(f"{axis}: basin off {entry['off']['basin']:g} {entry['unit']}, paper {entry['paper']['basin']:g} "
               f"{entry['unit']}")

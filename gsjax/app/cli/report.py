@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gsjax.app.cli.common import COMMON
+from gsjax.app.cli import common
 
 
 def add(sub) -> None:
@@ -14,7 +14,7 @@ def add(sub) -> None:
         "against inputs with error maps, PSNR per frame, Gaussian count, timings, CB-KNN's K and rho maps, warnings "
         "and the config. One RUN: RUN/report.html (gsjax run writes it too). A sweep's directory: its runs side by "
         "side in SWEEP/report.html. Several RUNs: side by side in ./report.html.",
-        parents=[COMMON])
+        parents=[common.COMMON])
     p.add_argument("runs", nargs="+", type=Path, metavar="RUN", help="a gsjax run's (or sweep's) output directory")
     p.add_argument("--out", type=Path, default=None,
                    help="the page to write (default: see above; an existing file is replaced only if it is a gsjax "

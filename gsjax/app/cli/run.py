@@ -2,16 +2,7 @@
 
 from __future__ import annotations
 
-from gsjax.app.cli.common import (
-    COMMON,
-    add_sequence_flags,
-    configure,
-    dataset_warnings,
-    describe_run,
-    open_run_sequence,
-    port,
-    quiet_logs,
-)
+from gsjax.app.cli import common
 
 
 def add(sub) -> None:
@@ -20,9 +11,9 @@ def add(sub) -> None:
         help="run SLAM on a sequence and write trajectory, metrics, plots, renders, map and checkpoints",
         description="Run SLAM on a sequence. Any config field can be overridden by its dotted name, e.g. "
         "--tracking.iters 60 --mapping.lr_means 2e-3 --cbknn.params.alpha 0.3 (see gsjax/slam/config.py).",
-        parents=[COMMON],
+        parents=[common.COMMON],
     )
-    add_sequence_flags(p)
+    common.add_sequence_flags(p)
     again = p.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     again.add_argument("--overwrite", action="store_true",
@@ -38,7 +29,7 @@ def add(sub) -> None:
                         "until Ctrl-C or SIGTERM")
     p.add_argument("--viewer-host", default="127.0.0.1", metavar="HOST",
                    help="the viewer's address (default 127.0.0.1: this machine only)")
-    p.add_argument("--viewer-port", type=port, default=8080, metavar="PORT",
+    p.add_argument("--viewer-port", type=common.port, default=8080, metavar="PORT",
                    help="the viewer's port (default 8080; the next free one if taken; 0: any free port)")
     p.set_defaults(func=run, accepts_overrides=True)
 
@@ -49,9 +40,9 @@ def run(args) -> int:
     from gsjax.app.runner import RunOptions, run_slam
     from gsjax.slam.presets import PRESET_WIDTH
 
-    quiet_logs()
+    common.quiet_logs()
 
-    configure(args)  # bad overrides are reported before any data is read
+    common.configure(args)  # bad overrides are reported before any data is read
     if args.viewer:
         from gsjax.viewer.scene import check_listen_address
 
@@ -60,10 +51,10 @@ def run(args) -> int:
                          resume=args.resume,
                          overwrite=args.overwrite, eval_every=args.eval_every, progress=not args.no_progress)
     check_run_dir(args.out, resume=args.resume, overwrite=args.overwrite)  # before reading any data
-    (sequence, factor), input_warnings = dataset_warnings(lambda: open_run_sequence(args))
-    describe = describe_run(args, sequence, factor)
+    (sequence, factor), input_warnings = common.dataset_warnings(lambda: common.open_run_sequence(args))
+    describe = common.describe_run(args, sequence, factor)
     width = sequence.intrinsics.width
-    config = configure(args, width)
+    config = common.configure(args, width)
     print(f"gsjax run: {sequence!r}, preset {args.preset}, CB-KNN {args.cbknn}, downscale {factor} -> {args.out}",
           flush=True)
     scale = width / PRESET_WIDTH[args.preset]

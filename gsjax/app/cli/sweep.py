@@ -2,16 +2,7 @@
 
 from __future__ import annotations
 
-from gsjax.app.cli.common import (
-    COMMON,
-    UserError,
-    add_sequence_flags,
-    configure,
-    dataset_warnings,
-    describe_run,
-    open_run_sequence,
-    quiet_logs,
-)
+from gsjax.app.cli import common
 
 
 def add(sub) -> None:
@@ -23,9 +14,9 @@ def add(sub) -> None:
         "times --seeds run seeds. Configs that differ in traced fields run as one compiled program (jax.vmap over "
         "the stacked configs, the batch sharded over the devices); a static field gives one program per value. "
         "Other config fields can be overridden as in gsjax run (--tracking.iters 60).",
-        parents=[COMMON],
+        parents=[common.COMMON],
     )
-    add_sequence_flags(p)
+    common.add_sequence_flags(p)
     p.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2",
                    help="a grid axis: a config field's dotted name and its values (repeat for more axes)")
     p.add_argument("--seeds", type=int, default=1, help="run seeds per config: --seed .. --seed + N - 1 (default 1)")
@@ -61,26 +52,26 @@ def run(args) -> int:
         request_cpu_devices,
     )
 
-    quiet_logs()
+    common.quiet_logs()
     if args.seeds < 1:
-        raise UserError(f"--seeds must be >= 1, got {args.seeds}")
+        raise common.UserError(f"--seeds must be >= 1, got {args.seeds}")
     axes = [parse_grid(text) for text in args.grid]
 
     if args.devices is not None and args.devices < 1:
-        raise UserError(f"--devices must be >= 1, got {args.devices}")
+        raise common.UserError(f"--devices must be >= 1, got {args.devices}")
     # Bad overrides and grid values are reported before reading data.
-    configs = len(expand_grid(configure(args), axes, [args.seed])) * args.seeds
+    configs = len(expand_grid(common.configure(args), axes, [args.seed])) * args.seeds
     options = SweepOptions(out=args.out, chunk=args.chunk, batch=args.batch, vmap_width=args.vmap_width,
                            eval_every=args.eval_every,
                            progress=not args.no_progress, overwrite=args.overwrite)
     check_run_dir(args.out, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
     request_cpu_devices(args.devices or default_cpu_devices(batch_size(args.batch, configs)))
     maybe_initialize_distributed()
-    (sequence, factor), input_warnings = dataset_warnings(lambda: open_run_sequence(args))
-    describe = describe_run(args, sequence, factor)
+    (sequence, factor), input_warnings = common.dataset_warnings(lambda: common.open_run_sequence(args))
+    describe = common.describe_run(args, sequence, factor)
     seeds = list(range(args.seed, args.seed + args.seeds))
-    rows = run_sweep(sequence, configure(args, sequence.intrinsics.width), axes, seeds, options, describe=describe,
-                     input_warnings=tuple(input_warnings))
+    config = common.configure(args, sequence.intrinsics.width)
+    rows = run_sweep(sequence, config, axes, seeds, options, describe=describe, input_warnings=tuple(input_warnings))
     import jax
 
     if jax.process_index() != 0:  # a multi-host sweep's other processes wrote nothing

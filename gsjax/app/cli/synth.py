@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gsjax.app.cli.common import COMMON, UserError
+from gsjax.app.cli import common
 
 
 def add(sub) -> None:
     p = sub.add_parser("synth", help="render a synthetic RGB-D sequence and write it in the TUM RGB-D layout",
-                       parents=[COMMON])
+                       parents=[common.COMMON])
     p.add_argument("--out", type=Path, required=True, help="output directory (must not exist or be empty)")
     p.add_argument("--frames", type=int, default=60, help="number of frames (default 60)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
@@ -22,9 +22,9 @@ def run(args) -> int:
     from gsjax.data.tum import write_tum
 
     if args.frames < 1:
-        raise UserError(f"--frames must be >= 1, got {args.frames}")
+        raise common.UserError(f"--frames must be >= 1, got {args.frames}")
     if args.out.exists() and (not args.out.is_dir() or any(args.out.iterdir())):
-        raise UserError(f"--out {args.out} already exists and is not an empty directory; refusing to overwrite")
+        raise common.UserError(f"--out {args.out} already exists and is not an empty directory; refusing to overwrite")
     config = SyntheticConfig(num_frames=args.frames, seed=args.seed)
     if args.noise:
         config = config.with_sensor_noise()
