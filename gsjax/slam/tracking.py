@@ -230,15 +230,14 @@ def _diverged(result: TrackResult, w2c_init, previous_loss, config: SlamConfig) 
 def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss) -> GuardedTrack:
     """:func:`track` from the constant-velocity prediction ``problem.w2c_init``, guarded against divergence.
 
-    ``previous_loss`` []: the previous tracked frame's loss (0: none, no loss-jump test). The retry runs inside
-    a ``while_loop`` of at most one pass, so it costs nothing when no frame diverges (also under ``vmap``, where a
-    ``cond`` would run both sides).
+    ``previous_loss`` []: the previous tracked frame's loss (0: none, no loss-jump test). Both attempts are passes
+    of one ``while_loop`` over a single traced tracker (the second with its steps times ``retry_lr_scale``), so the
+    compiled program holds the tracker once and the retry costs nothing when no frame diverges (also under
+    ``vmap``, where a ``cond`` would run both sides).
     """
     cfg = config.tracking
     w2c_init = problem.w2c_init
     if cfg.optimizer == "adam":
-        # Both attempts are one traced tracker in a loop (the second with smaller steps), so the compiled program
-        # holds the tracker once.
         def attempt(carry):
             number, first, _ = carry
             scale = jnp.where(number == 0, 1.0, cfg.retry_lr_scale)
@@ -254,11 +253,9 @@ def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss) -
 
         zeros = jax.tree.map(jnp.zeros_like, jax.eval_shape(lambda: track(problem, config)))
         _, first, second = jax.lax.while_loop(another, attempt, (jnp.int32(0), zeros, zeros))
-        retry = _diverged(first, w2c_init, previous_loss, config)
     else:
-        first = track(problem, config)
-        retry = _diverged(first, w2c_init, previous_loss, config)
-        second = first
+        first = second = track(problem, config)
+    retry = _diverged(first, w2c_init, previous_loss, config)
     ok_first = within_step_bound(first.w2c, w2c_init, config)
     ok_second = within_step_bound(second.w2c, w2c_init, config)
     use_second = retry & ok_second & (~ok_first | (second.loss < first.loss))
