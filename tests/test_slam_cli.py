@@ -87,7 +87,7 @@ def test_cli_run_writes_plots_renders_a_readable_map_config_and_checkpoints(cli_
         (["--dataset", "synthetic", "--cbknn.params.alpha", "-1"], r"CBKNN\.alpha must be finite and >= 0"),
         (["--dataset", "synthetic", "--tracking.iters"], r"--tracking\.iters needs a value"),
         (["--dataset", "synthetic", "--verbose"], r"unrecognised argument '--verbose'"),
-        (["--dataset", "synthetic", "--downscale", "7"], r"downscale 7 must divide the synthetic 160x120 image"),
+        (["--dataset", "synthetic", "--downscale", "7"], r"--downscale 7 must divide the synthetic 160x120 image"),
         (["--dataset", "tum"], r"--dataset tum needs --path DIR"),
         (["--dataset", "replica", "--path", "/nonexistent/gsjax"], r"--path /nonexistent/gsjax: no such directory"),
     ],

@@ -153,6 +153,8 @@ def open_run_sequence(args):
                         f"outside the {native.width}x{native.height} images; give the values in pixels at the stored "
                         "image size")
     factor = args.downscale or working_downscale(args.preset, native.width)
+    if args.dataset == SYNTHETIC and (native.width % factor or native.height % factor):
+        raise UserError(f"--downscale {factor} must divide the synthetic {native.width}x{native.height} image")
     if factor > min(native.width, native.height):
         raise UserError(f"--downscale {factor} leaves no pixel of the {native.width}x{native.height} images")
     sequence = open_sequence(args.dataset, max_frames=args.max_frames, stride=args.stride, downscale=factor,
