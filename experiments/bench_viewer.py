@@ -23,6 +23,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from gsjax.eval.run_metrics import read_run_metrics
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
@@ -49,8 +51,8 @@ def run_once(case: str, sequence_args: list[str], out: Path, browser) -> dict:
         if page is not None:
             page.context.close()
         assert process.stop(signal.SIGTERM) == 0, "\n".join(process.lines)
-    timings = json.loads((out / "metrics.json").read_text())["stage_timings_s"]
-    frames = json.loads((out / "metrics.json").read_text())["frames"]
+    metrics = read_run_metrics(out / "metrics.json")
+    timings, frames = metrics.stage_timings_s, metrics.frames
     seconds = timings["slam_s"] + timings.get("observe_s", 0.0)
     return dict(slam_s=timings["slam_s"], observe_s=timings.get("observe_s", 0.0), seconds=seconds,
                 seconds_per_frame=seconds / frames)

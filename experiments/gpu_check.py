@@ -10,9 +10,12 @@ Pallas >= 3x faster than XLA.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from pathlib import Path
+
+from gsjax.eval.run_metrics import read_run_metrics
 
 
 def _lines(path: Path) -> list[dict]:
@@ -41,15 +44,14 @@ def collect(out: Path) -> dict:
                 targets[f"pallas_speedup_track_iter_{size}"] = xla["track_iter_ms"] / pallas["track_iter_ms"]
         if ("pallas", "1200x680") in rows:
             targets["track_iter_ms_1200x680"] = rows[("pallas", "1200x680")]["track_iter_ms"]
-    metrics = _json(out / "run" / "metrics.json")
-    if metrics:
-        trajectory = metrics.get("trajectory") or {}
+    if (out / "run" / "metrics.json").is_file():
+        metrics = read_run_metrics(out / "run" / "metrics.json")
         result["run"] = dict(
-            {key: metrics.get(key) for key in ("frames", "width", "height", "frames_per_s", "seconds_per_frame",
-                                               "stage_timings_s", "num_gaussians", "frames_with_truncated_render",
-                                               "warnings")},
-            ate_rmse_c2w_cm=trajectory.get("ate_rmse_c2w_cm"), render=metrics.get("render"))
-        targets["frames_per_s_full_resolution"] = metrics.get("frames_per_s")
+            {key: getattr(metrics, key) for key in ("frames", "width", "height", "frames_per_s", "seconds_per_frame",
+                                                    "stage_timings_s", "num_gaussians", "frames_with_truncated_render",
+                                                    "warnings")},
+            ate_rmse_c2w_cm=metrics.ate_cm, render=dataclasses.asdict(metrics.render))
+        targets["frames_per_s_full_resolution"] = metrics.frames_per_s
     result["targets"] = dict(targets, goals="track_iter_ms_1200x680 <= 3; frames/s >= 5 at full resolution; "
                                           "pallas speedup >= 3")
     return result

@@ -52,10 +52,10 @@ def long_run(frames: int, work: Path, downscale: int = 4, every: int = 100, chec
     saves: list[dict] = []
     save = checkpoint.Checkpoints.save
 
-    def timed_save(self, state, meta, *args):
+    def timed_save(self, state, ledger, *args):
         t0 = time.perf_counter()
-        written = save(self, state, meta, *args)
-        saves.append(dict(frames_done=meta["frames_done"], seconds=time.perf_counter() - t0, bytes=written,
+        written = save(self, state, ledger, *args)
+        saves.append(dict(frames_done=ledger.frames_done, seconds=time.perf_counter() - t0, bytes=written,
                           capacity=int(state.gaussians.capacity)))
         return written
 
@@ -79,21 +79,19 @@ def long_run(frames: int, work: Path, downscale: int = 4, every: int = 100, chec
         metrics = run_slam(sequence, config, options, describe=dict(dataset="synthetic"), on_chunk=on_chunk)
     finally:
         checkpoint.Checkpoints.save = save
-    counts = json.loads((Path(work) / "metrics.json").read_text())
     stored = checkpoint.Checkpoints(Path(work) / "checkpoints")
     try:
         per_frame = stored.outputs(frames)
     finally:
         stored.close()
     return dict(frames=frames, width=sequence.intrinsics.width, height=sequence.intrinsics.height,
-                marks=marks, checkpoints=saves, ate_cm=metrics["trajectory"]["ate_rmse_c2w_cm"],
-                constant_pose_cm=metrics["constant_pose_ate_rmse_c2w_cm"],
-                psnr_db=(metrics["render"]["mean"] or {}).get("psnr_db"),
-                capacity=metrics["capacity"],
+                marks=marks, checkpoints=saves, ate_cm=metrics.ate_cm,
+                constant_pose_cm=metrics.constant_pose_ate_rmse_c2w_cm, psnr_db=metrics.psnr_db,
+                capacity=metrics.capacity,
                 initial_capacity=2 * sequence.intrinsics.width * sequence.intrinsics.height,
-                num_gaussians=metrics["num_gaussians"], retried_frames=counts["retried_frames"],
-                diverged_frames=counts["diverged_frames"], nonfinite_gaussians=counts["nonfinite_gaussians"],
-                seconds_per_frame=metrics["seconds_per_frame"], keyframes=metrics["keyframes"],
+                num_gaussians=metrics.num_gaussians, retried_frames=metrics.retried_frames,
+                diverged_frames=metrics.diverged_frames, nonfinite_gaussians=metrics.nonfinite_gaussians,
+                seconds_per_frame=metrics.seconds_per_frame, keyframes=metrics.keyframes,
                 gaussians_per_100=per_frame["num_gaussians"][every - 1::every],
                 max_gaussians=max(per_frame["num_gaussians"]), max_added=max(per_frame["added"]),
                 all_poses_finite=bool(all(map(math.isfinite, (x for m in per_frame["w2c"] for r in m for x in r)))))

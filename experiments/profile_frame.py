@@ -40,6 +40,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsjax.eval.run_metrics import read_run_metrics
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -234,7 +236,7 @@ def host_stages(args, work: Path) -> dict:
     for _ in range(2):  # the first fills the compilation cache
         if main(argv) != 0:
             raise SystemExit("gsjax run failed")
-    timings = json.loads((out / "metrics.json").read_text())["stage_timings_s"]
+    timings = read_run_metrics(out / "metrics.json").stage_timings_s
     timings["frames"] = args.run_frames
     return timings
 

@@ -21,6 +21,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from gsjax.eval.run_metrics import RunMetrics, read_run_metrics
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 RESULTS = ROOT / "experiments" / "results"
@@ -70,7 +72,7 @@ def available(row: Row) -> bool:
     return row.needs is None or (shared_data() / row.needs).is_dir()
 
 
-def run_row(row: Row, mode: str, work: Path) -> dict:
+def run_row(row: Row, mode: str, work: Path) -> RunMetrics:
     """``gsjax run`` for ``row`` with CB-KNN ``mode`` into ``work/ROW_MODE`` (reusing a finished run) -> its
     metrics.json."""
     from gsjax.app.cli import main
@@ -84,14 +86,13 @@ def run_row(row: Row, mode: str, work: Path) -> dict:
     status = main(argv)
     if status != 0:
         raise RuntimeError(f"gsjax {' '.join(argv)} exited with {status}")
-    return json.loads((out / "metrics.json").read_text())
+    return read_run_metrics(out / "metrics.json")
 
 
-def summary(metrics: dict) -> dict:
-    render = metrics["render"]["mean"] or {}
-    return dict(ate_cm=metrics["trajectory"]["ate_rmse_c2w_cm"], constant_cm=metrics["constant_pose_ate_rmse_c2w_cm"],
-                psnr_db=render.get("psnr_db"), s_per_frame=metrics["seconds_per_frame"],
-                retried=len(metrics["retried_frames"]), diverged=len(metrics["diverged_frames"]))
+def summary(metrics: RunMetrics) -> dict:
+    return dict(ate_cm=metrics.ate_cm, constant_cm=metrics.constant_pose_ate_rmse_c2w_cm, psnr_db=metrics.psnr_db,
+                s_per_frame=metrics.seconds_per_frame, retried=len(metrics.retried_frames or []),
+                diverged=len(metrics.diverged_frames or []))
 
 
 def markdown(results: dict) -> str:

@@ -153,11 +153,12 @@ def test_a_damaged_newest_checkpoint_falls_back_to_the_previous_one_with_a_warni
     metrics = run_slam(tiny_sequence(), tiny_config(), options(out, resume=True))
     err = capsys.readouterr().err
     assert f"checkpoint {checkpoints / str(FRAMES)} cannot be read" in err
-    assert any("falling back to an older one" in w for w in metrics["warnings"])
+    assert any("falling back to an older one" in w for w in metrics.warnings)
     assert damage != "keyframes" or victim.name == "00001.npz"  # one only the newest checkpoint needs
     for name in OUTPUTS:
         assert (out / name).read_bytes() == (reference / name).read_bytes(), name
-    assert comparable(dict(metrics, warnings=[])) == comparable(dict(reference_metrics, warnings=[]))
+    assert comparable(dict(metrics.to_json(), warnings=[])) == comparable(dict(reference_metrics.to_json(),
+                                                                               warnings=[]))
 
 
 def test_when_no_checkpoint_can_be_read_the_run_starts_over_with_a_warning(tmp_path, finished_run, capsys):
@@ -167,7 +168,7 @@ def test_when_no_checkpoint_can_be_read_the_run_starts_over_with_a_warning(tmp_p
     metrics = run_slam(tiny_sequence(), tiny_config(), options(out, resume=True))
     assert "the run starts from frame 0" in capsys.readouterr().err
     assert (out / "trajectory.txt").read_bytes() == (reference / "trajectory.txt").read_bytes()
-    assert len(metrics["warnings"]) == 3
+    assert len(metrics.warnings) == 3
 
 
 def test_a_checkpoint_writes_the_map_and_what_is_new_since_the_previous_one(finished_run):
@@ -180,12 +181,12 @@ def test_a_checkpoint_writes_the_map_and_what_is_new_since_the_previous_one(fini
     checkpoints = Checkpoints(directory)
     try:
         assert checkpoints.steps() == [FRAMES, CHUNK]
-        meta = checkpoints.read_meta(FRAMES)
+        ledger = checkpoints.read_ledger(FRAMES)
         assert len(checkpoints.outputs(FRAMES)["w2c"]) == FRAMES
     finally:
         checkpoints.close()
-    assert meta["segments"] == [[0, CHUNK], [CHUNK, FRAMES]] and meta["keyframes_saved"] == 2
-    assert metrics["checkpoints"]["count"] == 2 and metrics["checkpoints"]["every_frames"] == CHUNK
+    assert ledger.segments == [[0, CHUNK], [CHUNK, FRAMES]] and ledger.keyframes_saved == 2
+    assert metrics.checkpoints.count == 2 and metrics.checkpoints.every_frames == CHUNK
     step_bytes = sum(p.stat().st_size for p in (directory / str(FRAMES)).rglob("*") if p.is_file())
-    assert metrics["checkpoints"]["last_bytes"] >= step_bytes
+    assert metrics.checkpoints.last_bytes >= step_bytes
     assert not any("color" in p.name or "depth" in p.name for p in (directory / str(FRAMES)).rglob("*"))

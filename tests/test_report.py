@@ -16,6 +16,7 @@ import pytest
 
 from gsjax.app.cli import main
 from gsjax.app.runner import run_slam
+from gsjax.eval.run_metrics import read_run_metrics
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
 from gsjax.raster import render
@@ -60,29 +61,29 @@ def test_every_run_writes_a_self_contained_report_with_every_section(runs):
         assert needle not in page.lower(), needle
     # trajectory, errors over time, 2 render panels, PSNR, Gaussians/loss, 2 CB-KNN maps
     assert len(images_of(page)) == 8
-    assert f"{metrics['trajectory']['ate_rmse_c2w_cm']:.2f}" in page
-    assert f"{metrics['render']['mean']['psnr_db']:.2f}" in page
+    assert f"{metrics.trajectory.ate_rmse_c2w_cm:.2f}" in page
+    assert f"{metrics.render.mean['psnr_db']:.2f}" in page
     assert "slam" in page and "checkpoint" in page  # the stage timings
     assert "No warnings." in page and "&quot;cbknn&quot;: &quot;paper&quot;" in page  # escaped config.json
 
 
 def test_the_off_run_has_no_cbknn_section(runs):
     page = (runs["off"][0] / "report.html").read_text()
-    assert '<section id="cbknn">' not in page and runs["off"][1]["cbknn"] is None
+    assert '<section id="cbknn">' not in page and runs["off"][1].cbknn is None
     assert len(images_of(page)) == 6
 
 
 def test_metrics_hold_the_per_frame_series_keyframes_and_the_maps_frame(runs):
     out, metrics = runs["paper"]
-    assert json.loads((out / "metrics.json").read_text()) == metrics
-    per_frame = metrics["per_frame"]
+    assert read_run_metrics(out / "metrics.json") == metrics
+    per_frame = metrics.per_frame
     assert {len(v) for v in per_frame.values()} == {FRAMES}
-    assert per_frame["num_gaussians"][-1] == metrics["num_gaussians"] and per_frame["tracking_loss"][0] == 0
-    assert metrics["keyframe_frames"] == [0, 4] and len(metrics["keyframe_frames"]) == metrics["keyframes"]
-    assert metrics["trajectory"]["per_frame"]["est_index"] == list(range(FRAMES))
+    assert per_frame["num_gaussians"][-1] == metrics.num_gaussians and per_frame["tracking_loss"][0] == 0
+    assert metrics.keyframe_frames == [0, 4] and len(metrics.keyframe_frames) == metrics.keyframes
+    assert metrics.trajectory.per_frame["est_index"] == list(range(FRAMES))
     # map.ply is in the first camera's frame; world_from_map takes it to trajectory.txt's (the GT's) frame.
     _, gt_c2w, _ = tiny_sequence().gt_trajectory()
-    np.testing.assert_allclose(metrics["world_from_map"], gt_c2w[0], atol=1e-12)
+    np.testing.assert_allclose(metrics.world_from_map, gt_c2w[0], atol=1e-12)
     run = read_run(out)
     np.testing.assert_allclose(run.map_c2w()[0], np.eye(4), atol=1e-5)
     stamps, gt_read = read_tum_trajectory(out / "groundtruth.txt")
@@ -92,19 +93,19 @@ def test_metrics_hold_the_per_frame_series_keyframes_and_the_maps_frame(runs):
 
 def test_cbknn_diagnostics_are_the_renders_own_statistics(runs):
     out, metrics = runs["paper"]
-    cbknn = metrics["cbknn"]
+    cbknn = metrics.cbknn
     config = tiny_config("paper")
-    assert (cbknn["mode"], cbknn["k0"], cbknn["cell"]) == ("paper", float(config.cbknn.params.k0), 8)
-    assert [s["frame"] for s in cbknn["samples"]] == [0, 4]
+    assert (cbknn.mode, cbknn.k0, cbknn.cell) == ("paper", float(config.cbknn.params.k0), 8)
+    assert [s["frame"] for s in cbknn.samples] == [0, 4]
     assert sorted(p.name for p in (out / "renders").glob("cbknn_*.png")) == ["cbknn_000000.png", "cbknn_000004.png"]
     gaussians = read_ply(out / "map.ply")  # the final map, read back independently of the run's memory
     run = read_run(out)
-    for sample in cbknn["samples"]:
+    for sample in cbknn.samples:
         t = sample["frame"]
         w2c = np.linalg.inv(run.map_c2w()[t]).astype(np.float32)
         stats = render(gaussians, w2c, tiny_sequence().intrinsics, config.raster, cbknn=config.cbknn.params,
                        motion=np.float32(sample["gamma"])).stats.cbknn
-        assert sample["gamma"] == pytest.approx(metrics["per_frame"]["gamma"][t])
+        assert sample["gamma"] == pytest.approx(metrics.per_frame["gamma"][t])
         assert sample["k_mean"] == pytest.approx(float(np.mean(stats.k_map)), abs=1e-6)
         assert sample["mean_shift_px"] == pytest.approx(float(stats.mean_shift_px), rel=1e-3)
         assert sample["fraction_fewer_than_k"] == pytest.approx(float(stats.fraction_fewer_than_k), abs=1e-3)

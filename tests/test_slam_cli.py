@@ -73,7 +73,7 @@ def test_cli_run_writes_plots_renders_a_readable_map_config_and_checkpoints(cli_
     checkpoints = Checkpoints(cli_run / "checkpoints")
     try:
         assert checkpoints.latest() == FRAMES
-        assert checkpoints.read_meta(FRAMES)["frames_done"] == FRAMES
+        assert checkpoints.read_ledger(FRAMES).frames_done == FRAMES
     finally:
         checkpoints.close()
 

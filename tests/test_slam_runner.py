@@ -12,6 +12,7 @@ import pytest
 from gsjax.app.checkpoints import Checkpoints
 from gsjax.app.runner import RunOptions, run_slam
 from gsjax.config_text import apply_overrides
+from gsjax.eval.run_metrics import read_run_metrics
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
 from slam_fixtures import CAPACITY, CHUNK, FRAMES, tiny_config, tiny_sequence
@@ -38,7 +39,7 @@ def assert_same_run(out, metrics, reference_out, reference_metrics):
         assert (out / name).read_bytes() == (reference_out / name).read_bytes(), name
     assert saved_outputs(out) == saved_outputs(reference_out)
     for key in ("trajectory", "render", "num_gaussians", "capacity", "keyframes", "nonfinite_tracking_iterations"):
-        assert metrics[key] == reference_metrics[key], key
+        assert getattr(metrics, key) == getattr(reference_metrics, key), key
 
 
 def assert_close_run(out, metrics, reference_out, reference_metrics):
@@ -56,8 +57,8 @@ def assert_close_run(out, metrics, reference_out, reference_metrics):
         np.testing.assert_allclose(np.asarray(outputs[name], np.float64),
                                    np.asarray(reference_outputs[name], np.float64), rtol=1e-4, atol=1e-5, err_msg=name)
     for key in ("num_gaussians", "capacity", "keyframes", "nonfinite_tracking_iterations"):
-        assert metrics[key] == reference_metrics[key], key
-    ate, reference_ate = metrics["trajectory"]["ate_rmse_c2w_m"], reference_metrics["trajectory"]["ate_rmse_c2w_m"]
+        assert getattr(metrics, key) == getattr(reference_metrics, key), key
+    ate, reference_ate = metrics.trajectory.ate_rmse_c2w_m, reference_metrics.trajectory.ate_rmse_c2w_m
     assert ate == pytest.approx(reference_ate, abs=1e-5)
 
 
@@ -66,6 +67,11 @@ def reference(tmp_path_factory):
     """An uninterrupted run with the default capacity (2 H W, enough for the whole sequence)."""
     out = tmp_path_factory.mktemp("reference")
     return out, run_slam(tiny_sequence(), tiny_config(), options(out))
+
+
+def test_metrics_json_reads_back_as_the_record_the_run_returned(reference):
+    out, metrics = reference
+    assert read_run_metrics(out / "metrics.json") == metrics
 
 
 class Interrupt(Exception):
@@ -100,9 +106,9 @@ def test_a_tiny_capacity_grows_by_rerunning_chunks_and_changes_nothing(tmp_path,
     log = capsys.readouterr().out
     assert "frames 0-2; growing the map to 1200 slots and re-running the chunk" in log
     assert "frames 3-5; growing the map to 2400 slots and re-running the chunk" in log
-    assert metrics["capacity"] == CAPACITY
+    assert metrics.capacity == CAPACITY
     assert not any(saved_outputs(out)["dropped"])
-    assert metrics["stage_timings_s"]["regrow_s"] > 0
+    assert metrics.stage_timings_s["regrow_s"] > 0
     assert_close_run(out, metrics, *reference)
 
 
@@ -143,18 +149,18 @@ def test_a_refused_resume_leaves_the_run_directory_unchanged(tmp_path, interrupt
 
 def test_frames_per_second_after_a_resume_covers_the_whole_run(tmp_path, interrupted):
     out = copy_of(interrupted, tmp_path)
-    before = json.loads(json.dumps(_checkpoint_meta(out)["timings"]))  # the interrupted session's SLAM time
+    before = dict(_checkpoint_ledger(out).timings)  # the interrupted session's SLAM time
     metrics = run_slam(tiny_sequence(), tiny_config(), options(out, resume=True))
     # Timings are carried through the checkpoint: the SLAM time spans both sessions, and so does the rate.
-    assert metrics["stage_timings_s"]["slam_s"] > before["slam_s"] > 0
-    assert metrics["frames_per_s"] == pytest.approx(FRAMES / metrics["stage_timings_s"]["slam_s"])
+    assert metrics.stage_timings_s["slam_s"] > before["slam_s"] > 0
+    assert metrics.frames_per_s == pytest.approx(FRAMES / metrics.stage_timings_s["slam_s"])
 
 
-def _checkpoint_meta(out):
+def _checkpoint_ledger(out):
     from gsjax.app.checkpoints import Checkpoints
 
     checkpoints = Checkpoints(out / "checkpoints")
     try:
-        return checkpoints.read_meta(checkpoints.latest())
+        return checkpoints.read_ledger(checkpoints.latest())
     finally:
         checkpoints.close()

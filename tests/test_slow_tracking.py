@@ -29,9 +29,9 @@ def test_tracking_stays_within_its_ate_bound(row, mode, work):
     if not tracking_table.available(row):
         pytest.skip(f"{row.needs} is not in the shared data")
     metrics = tracking_table.run_row(row, mode, work)
-    assert metrics["frames"] == row.frames
-    ate = metrics["trajectory"]["ate_rmse_c2w_cm"]
+    assert metrics.frames == row.frames
+    ate = metrics.trajectory.ate_rmse_c2w_cm
     bound = tracking_table.BOUNDS_CM[(row.name, mode)]
     assert np.isfinite(ate) and ate <= bound, f"{row.name} {mode}: ATE {ate:.3f} cm > bound {bound} cm"
-    assert ate < 0.5 * metrics["constant_pose_ate_rmse_c2w_cm"]  # tracking, not standing still
-    assert metrics["nonfinite_gaussians"] == 0 and not metrics["diverged_frames"]
+    assert ate < 0.5 * metrics.constant_pose_ate_rmse_c2w_cm  # tracking, not standing still
+    assert metrics.nonfinite_gaussians == 0 and not metrics.diverged_frames

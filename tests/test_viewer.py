@@ -35,7 +35,7 @@ def test_view_serves_the_runs_keyframes_renders_and_ground_truth(finished, serve
     out, metrics = finished
     assert served.url.startswith("http://127.0.0.1:") and served.port > 0
     trajectory = served._trajectory
-    assert len(trajectory.c2w) == FRAMES and trajectory.keyframes.tolist() == metrics["keyframe_frames"] == [0, 4]
+    assert len(trajectory.c2w) == FRAMES and trajectory.keyframes.tolist() == metrics.keyframe_frames == [0, 4]
     # The ground truth starts at the estimate's first pose (the first camera: identity in the map's frame).
     assert trajectory.gt_frames.tolist() == list(range(FRAMES))
     np.testing.assert_allclose(trajectory.gt_c2w, np.linalg.inv(relative_gt_w2c()), atol=1e-5)

@@ -4,9 +4,10 @@ is restored.
 Layout under ``<out>/checkpoints``:
 
 * ``<step>/`` (orbax, one per checkpoint, the newest ``keep`` kept): the state without the keyframe images
-  (the map, recent poses, keyframe poses and counters, RNG) and a small JSON record (frames done, capacity, the
-  run's record, timings, warnings). ``step`` is the number of frames done. Orbax writes into a temporary
-  directory and renames it when complete, so a step directory is either whole or absent.
+  (the map, recent poses, keyframe poses and counters, RNG) and the run's :class:`RunLedger` as JSON (frames done,
+  capacity, the run's record, timings, warnings, the checkpoints so far). ``step`` is the number of frames done.
+  Orbax writes into a temporary directory and renames it when complete, so a step directory is either whole or
+  absent.
 * ``frames/<a>-<b>.npz``: the per-frame outputs of frames a..b-1, written once by the checkpoint that reached b.
 * ``keyframes/<slot>.npz``: keyframe ``slot``'s colour and depth, written once by the checkpoint after it was
   stored.
@@ -32,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from gsjax.eval.run_metrics import CheckpointSummary
 from gsjax.io.atomic import atomic_write_bytes, remove_stale_temporaries
 from gsjax.slam.state import KeyframeBuffer, SlamState, encode_color, encode_depth
 
@@ -40,13 +42,72 @@ _IMAGES = ("color", "depth")  # the keyframe fields stored as files, one per slo
 _ENCODE = {"color": lambda x: np.asarray(encode_color(x)), "depth": lambda x: np.asarray(encode_depth(x))}
 
 
+@dataclasses.dataclass
+class CheckpointLedger:
+    """The checkpoints a run has written: how often (frames), how many, their total and largest time (s), the last
+    and the largest size (bytes)."""
+
+    every: int = 0
+    count: int = 0
+    seconds_total: float = 0.0
+    seconds_max: float = 0.0
+    bytes_last: int = 0
+    bytes_max: int = 0
+
+    def add(self, seconds: float, written: int) -> None:
+        """Count a checkpoint that took ``seconds`` and wrote ``written`` bytes."""
+        self.count += 1
+        self.seconds_total += seconds
+        self.seconds_max = max(self.seconds_max, seconds)
+        self.bytes_last, self.bytes_max = written, max(self.bytes_max, written)
+
+    def summary(self) -> CheckpointSummary | None:
+        """What ``metrics.json`` reports, or None when the run wrote no checkpoint."""
+        if not self.count:
+            return None
+        return CheckpointSummary(count=self.count, every_frames=self.every, mean_s=self.seconds_total / self.count,
+                                 max_s=self.seconds_max, last_bytes=self.bytes_last, max_bytes=self.bytes_max)
+
+
+@dataclasses.dataclass
+class RunLedger:
+    """What a run has done beyond its state, kept in every checkpoint (as JSON, the field names as keys) so that a
+    resumed run continues it exactly.
+
+    Attributes:
+      capacity: the map's capacity; record: what a resume must match (:func:`gsjax.app.runner.resume_key`).
+      frames_done: frames processed; timings: seconds per stage so far; first_chunk_s: the first chunk's seconds.
+      warnings: the warnings found while running; depth_units_checked: whether the depth unit check ran.
+      checkpoints: the checkpoints so far; segments: [a, b) frame ranges of the per-frame output files;
+      keyframes_saved: keyframe slots whose images are on disk.
+    """
+
+    capacity: int
+    record: dict
+    frames_done: int = 0
+    timings: dict[str, float] = dataclasses.field(default_factory=dict)
+    first_chunk_s: float | None = None
+    warnings: list[str] = dataclasses.field(default_factory=list)
+    depth_units_checked: bool = False
+    checkpoints: CheckpointLedger = dataclasses.field(default_factory=CheckpointLedger)
+    segments: list[list[int]] = dataclasses.field(default_factory=list)
+    keyframes_saved: int = 0
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_json(cls, value: dict) -> RunLedger:
+        return cls(**dict(value, checkpoints=CheckpointLedger(**value["checkpoints"])))
+
+
 class Restored(NamedTuple):
-    """A restored checkpoint: ``step`` (frames done), ``state``, ``meta`` (the JSON record) and ``outputs`` (the
-    per-frame outputs of frames 0..step-1 as ``{field: list}``)."""
+    """A restored checkpoint: ``step`` (frames done), ``state``, ``ledger`` and ``outputs`` (the per-frame outputs
+    of frames 0..step-1 as ``{field: list}``)."""
 
     step: int
     state: SlamState
-    meta: dict
+    ledger: RunLedger
     outputs: dict
 
 
@@ -85,28 +146,27 @@ class Checkpoints:
 
     # ---------------------------------------------------------------------------------------------- writing
 
-    def save(self, state: SlamState, meta: dict, outputs: dict, segments: list[list[int]],
-             keyframes_saved: int) -> int:
-        """Write the checkpoint after ``meta["frames_done"]`` frames; returns the bytes written.
+    def save(self, state: SlamState, ledger: RunLedger, outputs: dict) -> int:
+        """Write the checkpoint after ``ledger.frames_done`` frames; returns the bytes written.
 
         ``outputs``: per-frame outputs ``{field: array [b - a]}`` of the frames since the previous checkpoint,
-        ``segments[-1] == [a, b]`` (every segment so far, recorded in the step); ``keyframes_saved``: keyframe slots
-        already on disk (slots from there to the state's count are written now).
+        ``ledger.segments[-1] == [a, b]``; keyframe slots from ``ledger.keyframes_saved`` to the state's count are
+        written now, and ``ledger.keyframes_saved`` is advanced to it.
         """
-        step = int(meta["frames_done"])
-        start, end = segments[-1]
+        step = int(ledger.frames_done)
+        start, end = ledger.segments[-1]
         written = 0
         path = self.directory / "frames" / f"{start:06d}-{end:06d}.npz"
         written += len(data := _npz_bytes({k: np.asarray(v) for k, v in outputs.items()}))
         atomic_write_bytes(path, data)
         count = int(state.keyframes.count)
-        for slot in range(keyframes_saved, count):
+        for slot in range(ledger.keyframes_saved, count):
             images = {name: np.asarray(getattr(state.keyframes, name)[slot]) for name in _IMAGES}
             written += len(data := _npz_bytes(images))
             atomic_write_bytes(self.directory / "keyframes" / f"{slot:05d}.npz", data)
-        meta = dict(meta, segments=segments, keyframes_saved=count)
+        ledger.keyframes_saved = count
         self._manager.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(_without_images(state)),
-                                                         meta=ocp.args.JsonSave(meta)), force=True)
+                                                         meta=ocp.args.JsonSave(ledger.to_json())), force=True)
         self._manager.wait_until_finished()
         return written + _tree_size(self.directory / str(step))
 
@@ -120,21 +180,23 @@ class Checkpoints:
         steps = self.steps()
         return steps[0] if steps else None
 
-    def read_meta(self, step: int) -> dict:
-        return self._manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
+    def read_ledger(self, step: int) -> RunLedger:
+        meta = self._manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
+        return RunLedger.from_json(meta)
 
     def outputs(self, step: int) -> dict:
         """The per-frame outputs of frames 0..step-1 recorded by checkpoint ``step`` (``{field: list}``)."""
-        return self._outputs(self.read_meta(step))
+        return self._outputs(self.read_ledger(step))
 
-    def _outputs(self, meta: dict) -> dict:
-        parts = [_load_npz(self.directory / "frames" / f"{a:06d}-{b:06d}.npz") for a, b in meta["segments"]]
-        if [a for a, _ in meta["segments"]] != [0, *[b for _, b in meta["segments"][:-1]]]:
+    def _outputs(self, ledger: RunLedger) -> dict:
+        segments = ledger.segments
+        parts = [_load_npz(self.directory / "frames" / f"{a:06d}-{b:06d}.npz") for a, b in segments]
+        if [a for a, _ in segments] != [0, *[b for _, b in segments[:-1]]]:
             raise ValueError("the frame segments do not cover the run contiguously")
         outputs = {name: np.concatenate([p[name] for p in parts]).tolist() for name in parts[0]} if parts else {}
         lengths = {len(v) for v in outputs.values()}
-        if lengths != {meta["frames_done"]}:
-            raise ValueError(f"the frame segments hold {sorted(lengths)} frames, not {meta['frames_done']}")
+        if lengths != {ledger.frames_done}:
+            raise ValueError(f"the frame segments hold {sorted(lengths)} frames, not {ledger.frames_done}")
         return outputs
 
     def restore(self, like: Callable[[int], SlamState], warn: Callable[[str], None]) -> Restored | None:
@@ -167,15 +229,15 @@ class Checkpoints:
         return restored
 
     def _restore(self, step: int, like: Callable[[int], SlamState]) -> Restored:
-        meta = self.read_meta(step)
-        template = like(int(meta["capacity"]))
+        ledger = self.read_ledger(step)
+        template = like(int(ledger.capacity))
         abstract = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), _without_images(template))
         tree = self._manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract))).state
         # Plain host arrays, as a fresh start has (restored ones carry a placement that would force a recompile).
         tree = jax.tree_util.tree_map(np.asarray, tree)
         count = int(tree["keyframes"]["count"])
-        if count != meta["keyframes_saved"]:
-            raise ValueError(f"the state holds {count} keyframes, the record {meta['keyframes_saved']}")
+        if count != ledger.keyframes_saved:
+            raise ValueError(f"the state holds {count} keyframes, the record {ledger.keyframes_saved}")
         images = {name: np.zeros_like(getattr(template.keyframes, name)) for name in _IMAGES}
         for slot in range(count):
             stored = _load_npz(self.directory / "keyframes" / f"{slot:05d}.npz")
@@ -184,7 +246,7 @@ class Checkpoints:
         keyframes = KeyframeBuffer(**tree.pop("keyframes"), **images)
         state = SlamState(**tree, keyframes=keyframes)
         state = jax.tree_util.tree_map(jnp.asarray, state)
-        return Restored(step, state, meta, self._outputs(meta))
+        return Restored(step, state, ledger, self._outputs(ledger))
 
     def close(self) -> None:
         self._manager.close()

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -17,6 +17,7 @@ import numpy as np
 from gsjax.config_text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.eval.image import render_metrics_splatam
+from gsjax.eval.run_metrics import CBKNNSummary, RenderMetrics, RunMetrics, TrajectoryMetrics
 from gsjax.eval.trajectory import ate_rmse_c2w, evaluate_trajectory
 from gsjax.io.atomic import atomic_write_json
 from gsjax.io.images import render_panel, save_rgb_png
@@ -26,6 +27,9 @@ from gsjax.io.trajectory import write_tum_trajectory
 from gsjax.raster import render
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import SlamState
+
+if TYPE_CHECKING:
+    from gsjax.app.checkpoints import CheckpointLedger
 
 
 class OutputOptions(NamedTuple):
@@ -50,14 +54,15 @@ def run_record(sequence: Sequence, config: SlamConfig, *, chunk: int, seed: int,
 
 
 def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: dict,
-                  timings: dict, record: dict, warnings: list[str], checkpoints: dict | None = None) -> dict:
+                  timings: dict, record: dict, warnings: list[str],
+                  checkpoints: CheckpointLedger | None = None) -> RunMetrics:
     """Evaluate a finished run and write ``trajectory.txt``, ``groundtruth.txt`` (when the sequence has ground
     truth), ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and ``metrics.json`` into
     ``options.out``; returns the metrics.
 
     ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` as lists; ``timings``: stage times (s);
     ``record``: what ``config.json`` holds; ``warnings``: every warning of the run, for ``metrics.json``;
-    ``checkpoints``: the runner's checkpoint ledger (count, seconds, bytes), for ``metrics.json``.
+    ``checkpoints``: the checkpoints the run wrote, for ``metrics.json``.
     """
     out = Path(options.out)
     t0 = time.perf_counter()
@@ -71,28 +76,34 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
     if gt_valid.any():  # for the report and the viewer; the dataset's own poses, in its world frame
         write_tum_trajectory(out / "groundtruth.txt", timestamps[gt_valid], gt_c2w[gt_valid])
 
-    metrics: dict = dict(dataset=record.get("dataset"), frames=len(est_c2w), width=record["width"],
-                         height=record["height"])
+    trajectory, constant_pose = None, None
     # Every frame with a valid GT pose is evaluated; the rigid alignment absorbs the world frames (the SLAM one is
     # the first camera), so frame 0 needs no ground truth.
     if gt_valid.sum() >= 3:
-        traj = evaluate_trajectory(timestamps, est_c2w, timestamps, gt_c2w, gt_valid=gt_valid)
-        metrics["trajectory"] = traj
+        trajectory = TrajectoryMetrics(**evaluate_trajectory(timestamps, est_c2w, timestamps, gt_c2w,
+                                                             gt_valid=gt_valid))
         identity = np.broadcast_to(np.eye(4), est_c2w.shape).copy()
-        metrics["constant_pose_ate_rmse_c2w_cm"] = 100 * ate_rmse_c2w(identity, gt_c2w, gt_valid).value_m
+        constant_pose = 100 * ate_rmse_c2w(identity, gt_c2w, gt_valid).value_m
         aligned = ate_rmse_c2w(est_c2w, gt_c2w, gt_valid)
         plot_trajectory_top_view(out / "trajectory.png", aligned.alignment.apply_points(est_c2w[aligned.used, :3, 3]),
                                  gt_c2w[aligned.used, :3, 3],
                                  title=f"{sequence.name}: ATE RMSE {100 * aligned.value_m:.2f} cm")
     else:
-        metrics["trajectory"] = None
         plot_trajectory_top_view(out / "trajectory.png", est_c2w[:, :3, 3], None,
                                  title=f"{sequence.name} (no ground truth)")
-    metrics["render"], metrics["cbknn"] = _render_metrics(sequence, config, options, state, outputs)
+    render_metrics, cbknn = _render_metrics(sequence, config, options, state, outputs)
     write_ply(out / "map.ply", state.gaussians)
     timings["outputs_s"] = time.perf_counter() - t0
     slam_frames_per_s = len(est_c2w) / timings["slam_s"] if timings["slam_s"] > 0 else None
-    metrics.update(
+    metrics = RunMetrics(
+        dataset=record.get("dataset"),
+        frames=len(est_c2w),
+        width=record["width"],
+        height=record["height"],
+        trajectory=trajectory,
+        constant_pose_ate_rmse_c2w_cm=constant_pose,
+        render=render_metrics,
+        cbknn=cbknn,
         frames_per_s=slam_frames_per_s,
         seconds_per_frame=(1.0 / slam_frames_per_s) if slam_frames_per_s else None,
         stage_timings_s=timings,
@@ -107,7 +118,7 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
         retried_frames=[int(t) for t in np.flatnonzero(outputs["retried"])],
         diverged_frames=[int(t) for t in np.flatnonzero(outputs["diverged"])],
         nonfinite_gaussians=int(state.nonfinite_gaussians),
-        checkpoints=_checkpoint_summary(checkpoints),
+        checkpoints=checkpoints.summary() if checkpoints is not None else None,
         warnings=list(warnings),
         camera=record["camera"],
         config=record["config"],
@@ -120,7 +131,7 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
     t0 = time.perf_counter()
     write_report(out, metrics=metrics)
     timings["report_s"] = time.perf_counter() - t0
-    atomic_write_json(out / "metrics.json", metrics)
+    atomic_write_json(out / "metrics.json", metrics.to_json())
     return metrics
 
 
@@ -135,14 +146,6 @@ def _json_number(value):
     return float(value) if np.isfinite(value) else None
 
 
-def _checkpoint_summary(ledger: dict | None) -> dict | None:
-    if not ledger or not ledger["count"]:
-        return None
-    return dict(count=ledger["count"], every_frames=ledger["every"],
-                mean_s=ledger["seconds_total"] / ledger["count"], max_s=ledger["seconds_max"],
-                last_bytes=ledger["bytes_last"], max_bytes=ledger["bytes_max"])
-
-
 # Module-level jits: a sweep's configs (and a process's runs) share one traced and compiled program each.
 _eval_render = jax.jit(render)
 
@@ -153,7 +156,7 @@ def _cbknn_stats(gaussians, w2c, intrinsics, settings, params, motion):
 
 
 def _render_metrics(sequence, config: SlamConfig, options: OutputOptions, state: SlamState,
-                    outputs: dict) -> tuple[dict, dict | None]:
+                    outputs: dict) -> tuple[RenderMetrics, CBKNNSummary | None]:
     """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0, except frames
     skipped for lack of depth: the final map rendered canonically at the estimated poses, compared with the input
     (masked by valid depth). ``mean`` is None when no frame is left.
@@ -165,7 +168,7 @@ def _render_metrics(sequence, config: SlamConfig, options: OutputOptions, state:
     total = len(outputs["w2c"])
     frames = [t for t in range(total) if (t == 0 or (t + 1) % options.eval_every == 0) and not outputs["skipped"][t]]
     if not frames:
-        return dict(frames=[], mean=None, per_frame=[]), None
+        return RenderMetrics(), None
     samples = set(np.unique(np.linspace(0, len(frames) - 1, min(options.samples, len(frames))).round().astype(int)))
     smoothing = config.cbknn.smooth_renders
     params = config.cbknn.params
@@ -188,11 +191,12 @@ def _render_metrics(sequence, config: SlamConfig, options: OutputOptions, state:
                                                 jnp.float32(gamma)))
             diagnostics.append(_cbknn_sample(stats, t, gamma, params.cell, renders / f"cbknn_{t:06d}.png"))
     mean = {k: float(np.mean([p[k] for p in per_frame])) for k in per_frame[0]}
-    render_metrics = dict(frames=frames, mean=dict(mean, depth_l1_cm=100 * mean["depth_l1_m"]), per_frame=per_frame)
+    render_metrics = RenderMetrics(frames=frames, mean=dict(mean, depth_l1_cm=100 * mean["depth_l1_m"]),
+                                   per_frame=per_frame)
     cbknn = None
     if smoothing:
-        cbknn = dict(mode=config.cbknn.mode, alpha=float(params.alpha), k0=float(params.k0), beta=float(params.beta),
-                     cell=params.cell, samples=diagnostics)
+        cbknn = CBKNNSummary(mode=config.cbknn.mode, alpha=float(params.alpha), k0=float(params.k0),
+                             beta=float(params.beta), cell=params.cell, samples=diagnostics)
     return render_metrics, cbknn
 
 
@@ -210,27 +214,26 @@ def _cbknn_sample(stats, frame: int, gamma: float, cell: int, path: Path) -> dic
     return entry
 
 
-def summary_lines(metrics: dict, out: Path) -> list[str]:
+def summary_lines(metrics: RunMetrics, out: Path) -> list[str]:
     """A short human summary of a finished run."""
     lines = []
-    traj = metrics.get("trajectory")
+    traj = metrics.trajectory
     if traj:
-        lines.append(f"ATE RMSE (camera centres) {traj['ate_rmse_c2w_cm']:.2f} cm; SplaTAM's mean-of-w2c ATE "
-                     f"{traj['ate_splatam_mean_w2c_cm']:.2f} cm; "
-                     f"constant pose {metrics['constant_pose_ate_rmse_c2w_cm']:.2f} cm")
-    render_mean = metrics["render"]["mean"]
+        lines.append(f"ATE RMSE (camera centres) {traj.ate_rmse_c2w_cm:.2f} cm; SplaTAM's mean-of-w2c ATE "
+                     f"{traj.ate_splatam_mean_w2c_cm:.2f} cm; "
+                     f"constant pose {metrics.constant_pose_ate_rmse_c2w_cm:.2f} cm")
+    render_mean = metrics.render.mean
     if render_mean is None:
         lines.append("no render metrics: no evaluation frame has usable depth")
     else:
         lines.append(f"PSNR {render_mean['psnr_db']:.2f} dB, MS-SSIM {render_mean['ms_ssim']:.3f} "
                      f"({int(render_mean['ms_ssim_scales'])} scales), SSIM {render_mean['ssim']:.3f}, depth L1 "
-                     f"{render_mean['depth_l1_cm']:.2f} cm on {len(metrics['render']['frames'])} frames")
-    if metrics["warnings"]:
-        lines.append(f"{len(metrics['warnings'])} warning(s), listed in metrics.json")
-    if metrics["frames_per_s"]:
-        lines.append(f"{metrics['frames']} frames, {metrics['seconds_per_frame']:.2f} s/frame, "
-                     f"{metrics['num_gaussians']} Gaussians")
+                     f"{render_mean['depth_l1_cm']:.2f} cm on {len(metrics.render.frames)} frames")
+    if metrics.warnings:
+        lines.append(f"{len(metrics.warnings)} warning(s), listed in metrics.json")
+    if metrics.frames_per_s:
+        lines.append(f"{metrics.frames} frames, {metrics.seconds_per_frame:.2f} s/frame, "
+                     f"{metrics.num_gaussians} Gaussians")
     lines.append(f"outputs in {Path(out).resolve()}: report.html trajectory.txt metrics.json trajectory.png renders/ "
                  "map.ply config.json checkpoints/")
     return lines
-

@@ -33,6 +33,7 @@ from gsjax.app.run_dir import check_run_dir, clear_previous_run
 from gsjax.app.run_outputs import OutputOptions, run_record, write_outputs
 from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
+from gsjax.eval.run_metrics import RunMetrics
 from gsjax.eval.trajectory import ate_so_far
 from gsjax.io.atomic import atomic_write_json, remove_stale_temporaries
 from gsjax.slam.config import SlamConfig
@@ -130,7 +131,7 @@ def run_slam(
     on_chunk: Callable[[int], None] | None = None,
     observe: Callable[[SlamState, dict], None] | None = None,
     input_warnings: tuple[str, ...] = (),
-) -> dict:
+) -> RunMetrics:
     """Run SLAM on ``sequence`` with ``config``; write every output under ``options.out``; return the metrics.
 
     ``describe`` (dataset name, path, preset, ...) is recorded in ``config.json`` and ``metrics.json``.
@@ -142,7 +143,7 @@ def run_slam(
     Raises :class:`gsjax.app.run_dir.RunDirError` before writing anything when ``options.out`` holds a previous run
     and neither ``resume`` nor ``overwrite`` is set, or cannot be used at all (:func:`check_run_dir`).
     """
-    from gsjax.app.checkpoints import Checkpoints
+    from gsjax.app.checkpoints import Checkpoints, RunLedger
 
     out = Path(options.out)
     check_run_dir(out, resume=options.resume, overwrite=options.overwrite)
@@ -160,7 +161,6 @@ def run_slam(
     for directory in (out, out / "renders"):  # what writers killed mid-write left (never a finished output)
         remove_stale_temporaries(directory)
     record = run_record(sequence, config, chunk=options.chunk, seed=options.seed, describe=describe)
-    timings = dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0)
     capacity = options.capacity or 2 * height * width
     kf_capacity = keyframe_capacity_for(total, config.keyframe_every)
 
@@ -169,14 +169,9 @@ def run_slam(
 
     state = like(capacity)
     outputs: dict[str, list] = {}
-    frame_warnings: list[str] = []  # found while running (kept in checkpoints, so a resumed run reports them too)
+    ledger = RunLedger(capacity=capacity, record=resume_key(record),
+                       timings=dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0))
     resume_warnings: list[str] = []  # about this resume (a checkpoint that could not be read)
-    units_checked = False
-    done = 0
-    first_chunk_s = None
-    ledger = dict(count=0, seconds_total=0.0, seconds_max=0.0, bytes_last=0, bytes_max=0, every=0)
-    segments: list[list[int]] = []
-    keyframes_saved = 0
     checkpoints = Checkpoints(out / "checkpoints")
     if options.resume:
         def fell_back(message: str) -> None:
@@ -185,27 +180,24 @@ def run_slam(
 
         restored = checkpoints.restore(like, fell_back)
         if restored is not None:
-            meta = restored.meta
             try:
-                _check_resumable(meta, record, out)
+                _check_resumable(restored.ledger.record, ledger.record, out)
             except ValueError:
                 checkpoints.close()
                 raise
-            state, outputs, done, capacity = restored.state, restored.outputs, restored.step, meta["capacity"]
-            timings, first_chunk_s = meta["timings"], meta["first_chunk_s"]  # timings cover the whole run
-            frame_warnings, units_checked = meta["warnings"], meta["depth_units_checked"]
-            ledger, segments, keyframes_saved = meta["checkpoints"], meta["segments"], meta["keyframes_saved"]
-            log.info("resumed from checkpoint at frame %d (capacity %d)", done, capacity)
+            state, outputs, ledger = restored.state, restored.outputs, restored.ledger
+            log.info("resumed from checkpoint at frame %d (capacity %d)", ledger.frames_done, ledger.capacity)
         elif resume_warnings:
             fell_back("no checkpoint could be read: the run starts from frame 0")
-    ledger["every"] = options.checkpoint_every
+    ledger.checkpoints.every = options.checkpoint_every
+    timings = ledger.timings  # cover the whole run, resumed or not
     atomic_write_json(out / "config.json", record)
 
     _, gt_c2w, gt_valid = sequence.gt_trajectory()
-    progress = Progress(total, done, options.progress)
+    progress = Progress(total, ledger.frames_done, options.progress)
 
     def warn(message: str) -> None:
-        frame_warnings.append(message)
+        ledger.warnings.append(message)  # kept in checkpoints, so a resumed run reports it too
         progress.write(f"warning: {message}", file=sys.stderr)
 
     def on_grow(dropped, first, last, new_capacity):
@@ -215,17 +207,18 @@ def run_slam(
     pending: list = []  # the chunks' outputs since the last checkpoint
     try:
         for chunk in chunk_loop(state, sequence.read_host, total, config, intrinsics, chunk=options.chunk,
-                                start=done, on_grow=on_grow):
-            state, chunk_out, count, capacity = chunk.state, chunk.outputs, chunk.count, chunk.capacity
+                                start=ledger.frames_done, on_grow=on_grow):
+            state, chunk_out, count, ledger.capacity = chunk.state, chunk.outputs, chunk.count, chunk.capacity
+            done = ledger.frames_done
             timings["read_frames_s"] += chunk.read_seconds
             timings["slam_s"] += chunk.seconds
             timings["regrow_s"] += chunk.regrow_seconds
-            if first_chunk_s is None:
-                first_chunk_s = chunk.seconds
+            if ledger.first_chunk_s is None:
+                ledger.first_chunk_s = chunk.seconds
             # The core decided which frames had usable depth; the host only words the warnings.
             processed = np.flatnonzero(~chunk_out.skipped)
-            if not units_checked and processed.size:
-                units_checked = True
+            if not ledger.depth_units_checked and processed.size:
+                ledger.depth_units_checked = True
                 message = _depth_unit_warning(sequence, done + int(processed[0]), chunk.frames[processed[0]])
                 if message:
                     warn(message)
@@ -237,23 +230,18 @@ def run_slam(
             for name, values in _outputs_to_lists(chunk_out, count).items():
                 outputs.setdefault(name, []).extend(values)
             pending.append(chunk_out)
-            done += count
-            since = segments[-1][1] if segments else 0
+            done = ledger.frames_done = done + count
+            since = ledger.segments[-1][1] if ledger.segments else 0
             if done - since >= options.checkpoint_every or done == total:
                 t0 = time.perf_counter()
-                segments.append([since, done])
+                ledger.segments.append([since, done])
                 new = {name: np.concatenate([np.asarray(getattr(o, name)) for o in pending])
                        for name in StepOutputs._fields}
-                meta = dict(frames_done=done, capacity=capacity, record=_resume_key(record), timings=timings,
-                            first_chunk_s=first_chunk_s, warnings=frame_warnings, depth_units_checked=units_checked,
-                            checkpoints=ledger)
-                written = checkpoints.save(state, meta, new, segments, keyframes_saved)
-                keyframes_saved, pending = int(state.keyframes.count), []
+                written = checkpoints.save(state, ledger, new)
+                pending = []
                 seconds = time.perf_counter() - t0
                 timings["checkpoint_s"] += seconds
-                ledger.update(count=ledger["count"] + 1, seconds_total=ledger["seconds_total"] + seconds,
-                              seconds_max=max(ledger["seconds_max"], seconds), bytes_last=written,
-                              bytes_max=max(ledger["bytes_max"], written))
+                ledger.checkpoints.add(seconds, written)
             w2c = np.asarray(outputs["w2c"], np.float64)
             ate = ate_so_far(np.linalg.inv(w2c), gt_c2w, gt_valid)
             fields = dict(loss=f"{outputs['tracking_loss'][-1]:.1f}", gaussians=outputs["num_gaussians"][-1],
@@ -271,18 +259,18 @@ def run_slam(
         progress.close()
         checkpoints.close()
 
-    timings["compile_s_estimate"] = _compile_estimate(first_chunk_s, timings["slam_s"], total, options.chunk)
+    timings["compile_s_estimate"] = _compile_estimate(ledger.first_chunk_s, timings["slam_s"], total, options.chunk)
     return write_outputs(sequence, config, options.outputs, state, outputs, timings, record,
-                         [*input_warnings, *frame_warnings, *resume_warnings], ledger)
+                         [*input_warnings, *ledger.warnings, *resume_warnings], ledger.checkpoints)
 
 
-def _resume_key(record: dict) -> dict:
+def resume_key(record: dict) -> dict:
+    """What of a run's ``config.json`` record a resume must match: the size, chunk, seed, camera and config."""
     return {k: record[k] for k in ("frames", "width", "height", "chunk", "seed", "camera", "config")}
 
 
-def _check_resumable(meta: dict, record: dict, out: Path) -> None:
-    saved = meta.get("record", {})
-    for key, value in _resume_key(record).items():
+def _check_resumable(saved: dict, key_now: dict, out: Path) -> None:
+    for key, value in key_now.items():
         if saved.get(key) != value:
             raise ValueError(
                 f"--resume: the checkpoint in {out / 'checkpoints'} was made with a different {key} "

@@ -40,6 +40,7 @@ from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run
 from gsjax.app.sweep_devices import batch_mesh, place_batch, share_results, to_host
 from gsjax.config_text import apply_overrides
 from gsjax.data.sequence import Sequence
+from gsjax.eval.run_metrics import RunMetrics
 from gsjax.io.atomic import atomic_write_bytes, atomic_write_json
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import Group, batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
@@ -294,13 +295,13 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
     return rows
 
 
-def _row(point: SweepPoint, metrics: dict, seconds: float, run: Path) -> dict:
-    traj = metrics.get("trajectory") or {}
-    render = metrics["render"]["mean"] or {}
+def _row(point: SweepPoint, metrics: RunMetrics, seconds: float, run: Path) -> dict:
+    traj = metrics.trajectory
+    render = metrics.render.mean or {}
     row = dict(point.values)
-    row.update(seed=point.seed, ate_rmse_cm=traj.get("ate_rmse_c2w_cm"), ate_splatam_cm=traj.get(
-        "ate_splatam_mean_w2c_cm"), psnr_db=render.get("psnr_db"), depth_l1_cm=render.get("depth_l1_cm"),
-        seconds=seconds, run=run.as_posix())
+    row.update(seed=point.seed, ate_rmse_cm=metrics.ate_cm,
+               ate_splatam_cm=traj.ate_splatam_mean_w2c_cm if traj else None, psnr_db=metrics.psnr_db,
+               depth_l1_cm=render.get("depth_l1_cm"), seconds=seconds, run=run.as_posix())
     return row
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from gsjax.eval.run_metrics import RunMetrics
 from gsjax.io.atomic import atomic_write_text
 from gsjax.report.page import is_report, report_html
 from gsjax.report.run_record import RunRecord, RunRecordError, expand_runs, read_run
@@ -27,7 +28,7 @@ def default_output(paths: list[Path]) -> Path:
 
 
 def write_report(paths: str | Path | list[str | Path], out: str | Path | None = None,
-                 metrics: dict | None = None) -> Path:
+                 metrics: RunMetrics | None = None) -> Path:
     """Write the report of the run(s) in ``paths`` to ``out`` (default :func:`default_output`), atomically.
 
     ``paths``: a run directory, a sweep directory (its ``runs/*`` side by side) or a list of them; ``metrics``

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gsjax.eval.run_metrics import RunMetrics
 from gsjax.report.figures import Series, series_png
 from gsjax.report.run_record import RunRecord
 
@@ -47,46 +48,45 @@ pre{background:#fff;border:1px solid #d8dce2;padding:10px;overflow:auto;font-siz
 # ------------------------------------------------------------------------------------------------ values
 
 
-def _get(tree, *keys):
-    for key in keys:
-        if not isinstance(tree, dict) or tree.get(key) is None:
-            return None
-        tree = tree[key]
-    return tree
-
-
 def _scaled(value, factor):
     return None if value is None else value * factor
 
 
-def _flags(m: dict) -> str | None:
-    keys = ("skipped_frames", "retried_frames", "diverged_frames")
-    if all(m.get(k) is None for k in keys):
+def _trajectory(m: RunMetrics, name: str):
+    return None if m.trajectory is None else getattr(m.trajectory, name)
+
+
+def _render(m: RunMetrics, name: str):
+    return None if m.render.mean is None else m.render.mean.get(name)
+
+
+def _flags(m: RunMetrics) -> str | None:
+    flags = (m.skipped_frames, m.retried_frames, m.diverged_frames)
+    if all(f is None for f in flags):
         return None
-    return " / ".join(str(len(m.get(k) or [])) for k in keys)
+    return " / ".join(str(len(f or [])) for f in flags)
 
 
 # (label, value from metrics.json, better: "lower" | "higher" | None, format)
-METRICS: tuple[tuple[str, Callable[[dict], object], str | None, str], ...] = (
-    ("ATE RMSE, camera centres (cm)", lambda m: _get(m, "trajectory", "ate_rmse_c2w_cm"), "lower", "{:.2f}"),
-    ("ATE, SplaTAM's mean of w2c (cm)", lambda m: _get(m, "trajectory", "ate_splatam_mean_w2c_cm"), "lower",
-     "{:.2f}"),
-    ("ATE of a constant pose (cm)", lambda m: m.get("constant_pose_ate_rmse_c2w_cm"), None, "{:.2f}"),
-    ("RPE translation RMSE (cm / frame)", lambda m: _scaled(_get(m, "trajectory", "rpe_trans_rmse_m"), 100), "lower",
+METRICS: tuple[tuple[str, Callable[[RunMetrics], object], str | None, str], ...] = (
+    ("ATE RMSE, camera centres (cm)", lambda m: m.ate_cm, "lower", "{:.2f}"),
+    ("ATE, SplaTAM's mean of w2c (cm)", lambda m: _trajectory(m, "ate_splatam_mean_w2c_cm"), "lower", "{:.2f}"),
+    ("ATE of a constant pose (cm)", lambda m: m.constant_pose_ate_rmse_c2w_cm, None, "{:.2f}"),
+    ("RPE translation RMSE (cm / frame)", lambda m: _scaled(_trajectory(m, "rpe_trans_rmse_m"), 100), "lower",
      "{:.3f}"),
-    ("RPE rotation RMSE (deg / frame)", lambda m: _get(m, "trajectory", "rpe_rot_rmse_deg"), "lower", "{:.3f}"),
-    ("PSNR (dB)", lambda m: _get(m, "render", "mean", "psnr_db"), "higher", "{:.2f}"),
-    ("SSIM", lambda m: _get(m, "render", "mean", "ssim"), "higher", "{:.3f}"),
-    ("MS-SSIM", lambda m: _get(m, "render", "mean", "ms_ssim"), "higher", "{:.3f}"),
-    ("depth L1 (cm)", lambda m: _get(m, "render", "mean", "depth_l1_cm"), "lower", "{:.2f}"),
-    ("frames/s", lambda m: m.get("frames_per_s"), "higher", "{:.3f}"),
-    ("s/frame", lambda m: m.get("seconds_per_frame"), "lower", "{:.2f}"),
-    ("frames", lambda m: m.get("frames"), None, "{}"),
-    ("resolution", lambda m: f"{m['width']}x{m['height']}" if m.get("width") else None, None, "{}"),
-    ("Gaussians", lambda m: m.get("num_gaussians"), None, "{}"),
-    ("keyframes", lambda m: m.get("keyframes"), None, "{}"),
+    ("RPE rotation RMSE (deg / frame)", lambda m: _trajectory(m, "rpe_rot_rmse_deg"), "lower", "{:.3f}"),
+    ("PSNR (dB)", lambda m: m.psnr_db, "higher", "{:.2f}"),
+    ("SSIM", lambda m: _render(m, "ssim"), "higher", "{:.3f}"),
+    ("MS-SSIM", lambda m: _render(m, "ms_ssim"), "higher", "{:.3f}"),
+    ("depth L1 (cm)", lambda m: _render(m, "depth_l1_cm"), "lower", "{:.2f}"),
+    ("frames/s", lambda m: m.frames_per_s, "higher", "{:.3f}"),
+    ("s/frame", lambda m: m.seconds_per_frame, "lower", "{:.2f}"),
+    ("frames", lambda m: m.frames, None, "{}"),
+    ("resolution", lambda m: f"{m.width}x{m.height}" if m.width else None, None, "{}"),
+    ("Gaussians", lambda m: m.num_gaussians, None, "{}"),
+    ("keyframes", lambda m: m.keyframes, None, "{}"),
     ("skipped / retried / diverged frames", _flags, None, "{}"),
-    ("warnings", lambda m: len(m.get("warnings") or []), None, "{}"),
+    ("warnings", lambda m: len(m.warnings), None, "{}"),
 )
 
 
@@ -127,7 +127,7 @@ def _table(header: list[str], rows: list[list[str]], raw: bool = False) -> str:
 
 def _describe(run: RunRecord) -> str:
     r, m = run.record, run.metrics
-    parts = [f"dataset {r.get('dataset') or m.get('dataset') or '?'}"]
+    parts = [f"dataset {r.get('dataset') or m.dataset or '?'}"]
     if r.get("sequence"):
         parts.append(f"sequence {r['sequence']}")
     for key, label in (("preset", "preset"), ("cbknn", "CB-KNN"), ("seed", "seed")):
@@ -178,7 +178,7 @@ def _trajectory_section(runs: list[RunRecord]) -> str:
 def _errors_section(runs: list[RunRecord]) -> str:
     ate, rpe_t, rpe_r = [], [], []
     for run in runs:
-        per_frame = _get(run.metrics, "trajectory", "per_frame")
+        per_frame = _trajectory(run.metrics, "per_frame")
         if not per_frame:
             continue
         ate.append(Series(run.name, np.asarray(per_frame["est_index"]), 100 * np.asarray(per_frame["ate_c2w_m"])))
@@ -195,10 +195,8 @@ def _errors_section(runs: list[RunRecord]) -> str:
 
 def _renders_section(runs: list[RunRecord]) -> str:
     def caption(run: RunRecord, frame: int) -> str:
-        frames = _get(run.metrics, "render", "frames") or []
-        per_frame = _get(run.metrics, "render", "per_frame") or []
-        if frame in frames and frames.index(frame) < len(per_frame):
-            values = per_frame[frames.index(frame)]
+        values = run.metrics.render.at(frame)
+        if values is not None:
             return (f"frame {frame}: PSNR {values['psnr_db']:.2f} dB, SSIM {values['ssim']:.3f}, depth L1 "
                     f"{100 * values['depth_l1_m']:.2f} cm (the final map rendered at the estimated pose)")
         return f"frame {frame}"
@@ -215,7 +213,7 @@ def _renders_section(runs: list[RunRecord]) -> str:
 def _psnr_section(runs: list[RunRecord]) -> str:
     psnr = []
     for run in runs:
-        frames, per_frame = _get(run.metrics, "render", "frames"), _get(run.metrics, "render", "per_frame")
+        frames, per_frame = run.metrics.render.frames, run.metrics.render.per_frame
         if frames and per_frame:
             psnr.append(Series(run.name, np.asarray(frames), np.asarray([p["psnr_db"] for p in per_frame])))
     if not psnr:
@@ -227,7 +225,7 @@ def _psnr_section(runs: list[RunRecord]) -> str:
 def _map_section(runs: list[RunRecord]) -> str:
     count, loss = [], []
     for run in runs:
-        per_frame = run.metrics.get("per_frame")
+        per_frame = run.metrics.per_frame
         if per_frame:
             frames = np.arange(len(per_frame["num_gaussians"]))
             count.append(Series(run.name, frames, np.asarray(per_frame["num_gaussians"], float)))
@@ -242,14 +240,14 @@ def _map_section(runs: list[RunRecord]) -> str:
 def _timings_section(runs: list[RunRecord]) -> str:
     stages: list[str] = []
     for run in runs:
-        for name in run.metrics.get("stage_timings_s") or {}:
+        for name in run.metrics.stage_timings_s:
             if name not in stages:
                 stages.append(name)
     if not stages:
         return _note("No timings recorded.")
 
     def cell(run, name):
-        value = (run.metrics.get("stage_timings_s") or {}).get(name)
+        value = run.metrics.stage_timings_s.get(name)
         return "–" if value is None else f"{value:.2f}"
 
     if len(runs) == 1:
@@ -261,15 +259,15 @@ def _timings_section(runs: list[RunRecord]) -> str:
 def _cbknn_section(runs: list[RunRecord]) -> str | None:
     parts = []
     for run in runs:
-        mode = run.record.get("cbknn") or _get(run.metrics, "cbknn", "mode")
-        cbknn = run.metrics.get("cbknn")
+        cbknn = run.metrics.cbknn
+        mode = run.record.get("cbknn") or (cbknn.mode if cbknn else None)
         title = f"<h3>{_e(run.name)}</h3>" if len(runs) > 1 else ""
         if cbknn:
             rows = [[str(s["frame"]), f"{s['gamma']:.2f}", f"{s['k_mean']:.2f}", f"{s['k_min']}-{s['k_max']}",
                      f"{s['rho_max']:.2f}", f"{100 * s['empty_cells']:.0f}", f"{s['mean_shift_px']:.3f}",
-                     f"{100 * s['fraction_fewer_than_k']:.1f}"] for s in cbknn["samples"]]
-            params = (f"mode {cbknn['mode']}: alpha {cbknn['alpha']:g}, K0 {cbknn['k0']:g}, beta {cbknn['beta']:g}, "
-                      f"{cbknn['cell']} px cells")
+                     f"{100 * s['fraction_fewer_than_k']:.1f}"] for s in cbknn.samples]
+            params = (f"mode {cbknn.mode}: alpha {cbknn.alpha:g}, K0 {cbknn.k0:g}, beta {cbknn.beta:g}, "
+                      f"{cbknn.cell} px cells")
             images = "".join(_figure(path.read_bytes(), f"CB-KNN K and rho maps, frame {frame}")
                              for frame, path in run.cbknn_panels)
             parts.append(title + _note(params) + _table(
@@ -280,7 +278,7 @@ def _cbknn_section(runs: list[RunRecord]) -> str | None:
                                        "samples; no per-pixel kernel, so no K or rho maps."))
         elif len(runs) > 1 and mode:
             parts.append(title + _note(f"CB-KNN {mode}."))
-    if not any(run.metrics.get("cbknn") or run.record.get("cbknn") == "code_parity" for run in runs):
+    if not any(run.metrics.cbknn or run.record.get("cbknn") == "code_parity" for run in runs):
         return None
     return _note("The final map rendered with CB-KNN at the sample frames' estimated poses and their motion gamma: "
                  "K is the kernel size per cell, rho the density of Gaussian centres (1 = mean of the non-empty "
@@ -290,7 +288,7 @@ def _cbknn_section(runs: list[RunRecord]) -> str | None:
 def _warnings_section(runs: list[RunRecord]) -> str:
     parts = []
     for run in runs:
-        warnings = run.metrics.get("warnings") or []
+        warnings = run.metrics.warnings
         title = f"<h3>{_e(run.name)}</h3>" if len(runs) > 1 else ""
         items = "".join(f"<li>{_e(w)}</li>" for w in warnings)
         parts.append(title + (f'<ul class="warnings">{items}</ul>' if warnings else _note("No warnings.")))

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.eval.association import associate_timestamps
+from gsjax.eval.run_metrics import RunMetrics
 from gsjax.eval.trajectory import ground_truth_on_estimate
 from gsjax.io.trajectory import read_tum_trajectory
 
@@ -31,7 +32,7 @@ class RunRecord:
 
     Attributes:
       path: the run directory; name: how the report names it (the directory's name, unless that is ambiguous).
-      metrics: ``metrics.json``; record: ``config.json`` (dataset, preset, CB-KNN mode, camera, config, ...).
+      metrics: ``metrics.json``'s record; record: ``config.json`` (dataset, preset, CB-KNN mode, camera, config, ...).
       timestamps: [T] s; est_c2w: [T, 4, 4] camera-to-world (m), as in ``trajectory.txt``.
       gt_timestamps, gt_c2w: ``groundtruth.txt`` ([M] s, [M, 4, 4]), or None.
       panels: ``renders/frame_T.png`` as (T, path), by frame; cbknn_panels: ``renders/cbknn_T.png`` likewise.
@@ -39,7 +40,7 @@ class RunRecord:
 
     path: Path
     name: str
-    metrics: dict
+    metrics: RunMetrics
     record: dict
     timestamps: np.ndarray
     est_c2w: np.ndarray
@@ -51,7 +52,8 @@ class RunRecord:
     @property
     def world_from_map(self) -> np.ndarray:
         """[4, 4]: map (SLAM world) coordinates -> the trajectory file's frame (identity for runs that predate it)."""
-        return np.asarray(self.metrics.get("world_from_map", np.eye(4)), np.float64)
+        world_from_map = self.metrics.world_from_map
+        return np.eye(4) if world_from_map is None else np.asarray(world_from_map, np.float64)
 
     def map_c2w(self) -> np.ndarray:
         """[T, 4, 4] the estimated camera-to-world poses in the map's frame (what renders the map at each frame)."""
@@ -100,7 +102,7 @@ def _frames_of(directory: Path, prefix: str) -> tuple[tuple[int, Path], ...]:
     return tuple(sorted(found))
 
 
-def read_run(path: str | Path, metrics: dict | None = None) -> RunRecord:
+def read_run(path: str | Path, metrics: RunMetrics | None = None) -> RunRecord:
     """Read the run in ``path``; ``metrics`` stands in for ``metrics.json`` while a run writes its outputs.
 
     Raises :class:`RunRecordError` naming the directory or file when it is not a finished run or a file is damaged.
@@ -109,7 +111,11 @@ def read_run(path: str | Path, metrics: dict | None = None) -> RunRecord:
     if not path.is_dir():
         raise RunRecordError(f"{path}: no such run directory")
     if metrics is None:
-        metrics = _read_json(path / "metrics.json", required=True)
+        value = _read_json(path / "metrics.json", required=True)
+        try:
+            metrics = RunMetrics.from_json(value)
+        except ValueError as error:
+            raise RunRecordError(f"{path / 'metrics.json'}: {error}") from None
     record = _read_json(path / "config.json", required=False) or {}
     timestamps, est_c2w = _read_trajectory(path / "trajectory.txt", required=True)
     gt_timestamps, gt_c2w = _read_trajectory(path / "groundtruth.txt", required=False)

@@ -15,22 +15,21 @@ from pathlib import Path
 
 import numpy as np
 
+from gsjax.eval.run_metrics import RunMetrics
 from gsjax.viewer.scene import Camera, MapSnapshot, MapViewer, TrajectorySnapshot
 
 __all__ = ["MapViewer", "open_run", "summary_markdown", "wait_for_stop"]
 
 
-def summary_markdown(title: str, metrics: dict) -> str:
+def summary_markdown(title: str, metrics: RunMetrics) -> str:
     """The viewer's summary of a finished run (from its ``metrics.json``)."""
     lines = [f"**{title}**"]
-    trajectory = metrics.get("trajectory")
-    if trajectory:
-        lines.append(f"ATE RMSE {trajectory['ate_rmse_c2w_cm']:.2f} cm")
-    render = (metrics.get("render") or {}).get("mean")
+    if metrics.ate_cm is not None:
+        lines.append(f"ATE RMSE {metrics.ate_cm:.2f} cm")
+    render = metrics.render.mean
     if render:
         lines.append(f"PSNR {render['psnr_db']:.2f} dB, depth L1 {render['depth_l1_cm']:.2f} cm")
-    lines.append(f"{metrics.get('frames')} frames, {metrics.get('num_gaussians')} Gaussians, "
-                 f"{metrics.get('keyframes')} keyframes")
+    lines.append(f"{metrics.frames} frames, {metrics.num_gaussians} Gaussians, {metrics.keyframes} keyframes")
     return "  \n".join(lines)
 
 
@@ -54,7 +53,7 @@ def open_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080) -> 
         gaussians = read_ply(ply)
     except ValueError as error:
         raise RunRecordError(str(error)) from None
-    camera = run.metrics.get("camera") or run.record.get("camera")
+    camera = run.metrics.camera or run.record.get("camera")
     if not camera:
         raise RunRecordError(f"{run.path / 'metrics.json'}: no 'camera' (the run predates the viewer)")
     intrinsics = make_intrinsics(camera["fx"], camera["fy"], camera["cx"], camera["cy"], camera["height"],
@@ -66,7 +65,7 @@ def open_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080) -> 
     renderer = MapRenderer(intrinsics, settings)
     renderer.set_map(gaussians)
     c2w = run.map_c2w()
-    keyframes = np.asarray(run.metrics.get("keyframe_frames") or [], int)
+    keyframes = np.asarray(run.metrics.keyframe_frames, int)
     viewer = MapViewer(Camera(camera["fx"], camera["fy"], camera["cx"], camera["cy"], camera["width"],
                               camera["height"]), RunImages(run.path, c2w, keyframes, renderer),
                        title=f"gsjax: {run.name}", host=host, port=port)

@@ -8,6 +8,7 @@ import jax
 import numpy as np
 
 from gsjax.data.sequence import Sequence
+from gsjax.eval.run_metrics import RunMetrics
 from gsjax.eval.trajectory import ate_so_far, ground_truth_on_estimate
 from gsjax.io.images import to_uint8
 from gsjax.slam.config import SlamConfig
@@ -66,7 +67,7 @@ class LiveViewer:
                                 f"{len(snapshot.centers)} Gaussians, {count} keyframes{ate}")
         self.seconds += time.perf_counter() - t0
 
-    def finished(self, metrics: dict) -> None:
+    def finished(self, metrics: RunMetrics) -> None:
         """Say that the run is over, with its final figures."""
         from gsjax.viewer import summary_markdown
 
