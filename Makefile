@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/pip install -q -c constraints.txt -e '.[test]'
 	touch $(STAMP)
 
-# The browser tests (tests/test_ui_browser.py) drive Debian's Chromium; installed here when missing.
+# The browser tests (tests/viewer/test_ui_browser.py) drive Debian's Chromium; installed here when missing.
 chromium:
 	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || [ -n "$$GSJAX_CHROMIUM" ] \
 	|| { echo "installing Debian's chromium package for the browser tests (apt-get)"; \

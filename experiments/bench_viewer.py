@@ -24,11 +24,9 @@ import tempfile
 from pathlib import Path
 
 from gsjax.eval.run_metrics import read_run_metrics
+from gsjax.viewer.browser import Process, launch, open_page
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from browser import Process, launch, open_page  # noqa: E402
 
 CASES = ("no viewer", "viewer, no browser", "viewer, browser (map as points)", "viewer, browser, map as splats")
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The GPU check of the Pallas hot path, in one prepared script (< 8 min on a fresh GPU machine with JAX installed,
 # no network; gsjax runs from the checkout via PYTHONPATH):
-#   1. the GPU tests (tests/test_gpu.py): compiled Pallas vs XLA on a 640x480 map, values and gradients;
+#   1. the GPU tests (tests/raster/test_gpu.py): compiled Pallas vs XLA on a 640x480 map, values and gradients;
 #   2. gsjax bench, xla and pallas, at 640x480 and 1200x680;
 #   3. a 40-frame full-resolution (640x480) run of the 7-Scenes sample with the replica preset (40 tracking +
 #      60 mapping iterations per frame), on the default backend (pallas on a GPU);
@@ -54,7 +54,7 @@ step() {  # step NAME TIMEOUT_S COMMAND...: run with a time limit, record status
     tail -n 25 "$OUT/$name.log"
 }
 rm -f "$OUT/steps.jsonl"
-GSJAX_GPU_REPORT="$OUT/tests.jsonl" step tests 120 "$PY" -m pytest -q -p no:cacheprovider tests/test_gpu.py
+GSJAX_GPU_REPORT="$OUT/tests.jsonl" step tests 120 "$PY" -m pytest -q -p no:cacheprovider tests/raster/test_gpu.py
 step bench 180 "$PY" -m gsjax bench --backend xla,pallas --sizes "$SIZES" --repeats 5 \
     --out "$OUT/bench.json"
 if [ -d .gpu_data/7scenes ]; then

@@ -14,10 +14,9 @@ import signal
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+from gsjax.viewer.browser import Process, decode, drawn_fraction, launch, open_page, wait_until
 
-from browser import Process, decode, drawn_fraction, launch, open_page, wait_until  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 FIGURES = ROOT / "experiments" / "figures"
 WIDTH, HEIGHT = 1280, 860

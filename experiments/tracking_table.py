@@ -8,8 +8,7 @@ re-evaluates it (and refuses other options), so ``make test-slow`` with ``GSJAX_
 script with ``--work DIR`` measures each run once. Writes ``experiments/results/tracking_table.md`` and ``.json``;
 ``--update-readme`` replaces the table under "## Measured tracking" in README.md.
 
-``BOUNDS_CM`` (used by ``tests/test_slow_tracking.py``) sit a little above the values measured on 2026-12-02, so
-a tracking regression fails the slow suite.
+The rows, their ATE bounds and the run of one row are :mod:`gsjax.app.tracking_table` (shared with the slow suite).
 """
 
 from __future__ import annotations
@@ -18,83 +17,12 @@ import argparse
 import json
 import re
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
-from gsjax.eval.run_metrics import RunMetrics, read_run_metrics
+from gsjax.app.tracking_table import BOUNDS_CM, MODES, ROWS, available, run_row, shared_data, summary
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
 RESULTS = ROOT / "experiments" / "results"
-MODES = ("off", "paper")
-
-
-@dataclass(frozen=True)
-class Row:
-    """One sequence of the table: its name, label, frame count and ``gsjax run`` flags (data paths relative to
-    the shared data directory)."""
-
-    name: str
-    label: str
-    frames: int
-    flags: tuple[str, ...]
-    needs: str | None = None  # a folder of the shared data the row reads
-
-
-ROWS = (
-    Row("synthetic", "synthetic (`make demo`)", 30, ("--dataset", "synthetic")),
-    Row("synthetic_noisy", "synthetic `--synthetic-noise`", 60,
-        ("--dataset", "synthetic", "--synthetic-noise", "--max-frames", "60")),
-    Row("7scenes_40", "7-Scenes kitchen (`../shared/data`)", 40,
-        ("--dataset", "7scenes", "--max-frames", "40"), "7scenes_redkitchen"),
-    Row("7scenes_150", "7-Scenes kitchen", 150, ("--dataset", "7scenes"), "7scenes_redkitchen"),
-    Row("replica", "Replica office0 sample", 4, ("--dataset", "replica"), "replica_office0_mini/office0"),
-)
-
-# ATE RMSE (cm) each run must stay under: today's value (README, 2026-12-02) plus a margin of about 15 %
-# (at least 0.03 cm) for float32 rounding across machines.
-BOUNDS_CM = {
-    ("synthetic", "off"): 0.20, ("synthetic", "paper"): 0.22,
-    ("synthetic_noisy", "off"): 0.25, ("synthetic_noisy", "paper"): 0.27,
-    ("7scenes_40", "off"): 0.31, ("7scenes_40", "paper"): 0.32,
-    ("7scenes_150", "off"): 2.25, ("7scenes_150", "paper"): 2.40,
-    ("replica", "off"): 0.92, ("replica", "paper"): 1.00,
-}
-
-
-def shared_data() -> Path:
-    import os
-
-    return Path(os.environ.get("GSJAX_SHARED_DATA", DATA))
-
-
-def available(row: Row) -> bool:
-    return row.needs is None or (shared_data() / row.needs).is_dir()
-
-
-def run_row(row: Row, mode: str, work: Path) -> RunMetrics:
-    """``gsjax run`` for ``row`` with CB-KNN ``mode`` into ``work/ROW_MODE`` (reusing a finished run) -> its
-    metrics.json."""
-    from gsjax.app.cli import main
-
-    out = Path(work) / f"{row.name}_{mode}"
-    argv = ["run", *row.flags, "--cbknn", mode, "--out", str(out), "--no-progress"]
-    if row.needs:
-        argv += ["--path", str(shared_data() / row.needs)]
-    if (out / "config.json").exists():
-        argv.append("--resume")  # finished: re-evaluated only; interrupted: continued
-    status = main(argv)
-    if status != 0:
-        raise RuntimeError(f"gsjax {' '.join(argv)} exited with {status}")
-    return read_run_metrics(out / "metrics.json")
-
-
-def summary(metrics: RunMetrics) -> dict:
-    return dict(ate_cm=metrics.ate_cm, constant_cm=metrics.constant_pose_ate_rmse_c2w_cm, psnr_db=metrics.psnr_db,
-                s_per_frame=metrics.seconds_per_frame, retried=len(metrics.retried_frames or []),
-                diverged=len(metrics.diverged_frames or []))
-
-
 def markdown(results: dict) -> str:
     lines = ["| sequence | frames | ATE RMSE off / paper | constant pose | PSNR off / paper | s/frame off / paper |",
              "|---|---|---|---|---|---|"]

@@ -1,0 +1,122 @@
+"""`gsjax.slam.run` (in memory, the runner's chunk loop), mapping at known poses, and noise injection."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gsjax import slam
+from gsjax.config_text import apply_overrides
+from gsjax.data.frame import Frame, stack_frames
+from gsjax.gaussians import Gaussians
+from gsjax.slam.config import NoiseConfig
+from gsjax.slam.noise import add_depth_noise, perturb_map
+from gsjax.slam.system import run_chunk
+from tests.support.tiny_slam import (
+    CHUNK,
+    FRAMES,
+    all_finite,
+    assert_trees_equal,
+    frames,
+    initial,
+    relative_gt_w2c,
+    tiny_config,
+    tiny_sequence,
+    trees_differ,
+)
+
+
+def run_tiny(config=None, seed=0, poses=None, source=None):
+    return slam.run(tiny_sequence() if source is None else source, config or tiny_config(),
+                    tiny_sequence().intrinsics, seed=seed, poses=poses, chunk=CHUNK)
+
+
+def test_slam_run_equals_the_chunked_scan_bit_for_bit():
+    result = run_tiny()
+    state, first = run_chunk(initial(), frames(0, CHUNK), jnp.ones(CHUNK, bool), tiny_config(),
+                             tiny_sequence().intrinsics)
+    state, second = run_chunk(state, frames(CHUNK, FRAMES), jnp.ones(CHUNK, bool), tiny_config(),
+                              tiny_sequence().intrinsics)
+    expected = jax.tree_util.tree_map(lambda a, b: np.concatenate([a, b]), first, second)
+    assert_trees_equal(result.outputs, expected)
+    assert_trees_equal(result.state, state)
+    np.testing.assert_array_equal(result.w2c, np.asarray(expected.w2c))
+    assert result.w2c.shape == (FRAMES, 4, 4)
+
+
+def test_slam_run_takes_a_stacked_frame_or_a_list_and_ignores_ground_truth():
+    host = [tiny_sequence().read_host(i) for i in range(FRAMES)]
+    stacked = stack_frames(host)
+    wrong_gt = dataclasses.replace(stacked, c2w=stacked.c2w + 1.0)
+    reference = run_tiny()
+    for source in (stacked, host, wrong_gt):
+        assert_trees_equal(run_tiny(source=source).outputs, reference.outputs)
+
+
+def test_slam_run_rejects_empty_input_and_misshaped_poses():
+    with pytest.raises(ValueError, match="at least one frame"):
+        slam.run([], tiny_config(), tiny_sequence().intrinsics)
+    with pytest.raises(ValueError, match=r"\[6, 4, 4\]"):
+        run_tiny(poses=np.zeros((5, 4, 4)))
+
+
+def test_mapping_at_known_poses_keeps_them_and_builds_the_map():
+    gt = relative_gt_w2c().astype(np.float32)
+    result = run_tiny(poses=gt)
+    np.testing.assert_allclose(result.w2c, gt, atol=2e-6)  # orthonormalised in float32
+    np.testing.assert_array_equal(result.outputs.tracking_loss, 0.0)
+    assert int(result.state.gaussians.num_active()) > 0 and all_finite(result.state)
+    # Not the tracked run: the map follows the given poses.
+    assert trees_differ(run_tiny().state.gaussians, result.state.gaussians)
+
+
+# ------------------------------------------------------------------------------------------------ noise
+
+
+def _frame(depth):
+    return Frame(color=jnp.zeros(depth.shape + (3,)), depth=jnp.asarray(depth, jnp.float32), c2w=jnp.eye(4),
+                 pose_valid=jnp.bool_(False), index=jnp.int32(0))
+
+
+def test_depth_noise_has_the_configured_std_on_valid_pixels_and_leaves_holes():
+    depth = np.full((200, 300), 2.0, np.float32)
+    depth[:, :50] = 0.0
+    noisy = np.asarray(add_depth_noise(_frame(depth), NoiseConfig(depth_cm=1.0), jax.random.PRNGKey(3)).depth)
+    assert np.all(noisy[:, :50] == 0.0) and np.all(noisy[:, 50:] > 0)
+    error = noisy[:, 50:] - 2.0
+    assert abs(error.std() - 0.01) < 0.0005 and abs(error.mean()) < 0.0005  # 50 000 samples
+    # Zero noise returns the input exactly (also below the 1 mm floor).
+    depth[0, 60] = 1e-4
+    same = add_depth_noise(_frame(depth), NoiseConfig(), jax.random.PRNGKey(3)).depth
+    np.testing.assert_array_equal(np.asarray(same), depth)
+
+
+def test_map_noise_perturbs_means_in_cm_and_colours_with_the_configured_std():
+    n = 20000
+    gaussians = Gaussians(means=jnp.ones((n, 3)), log_scales=jnp.zeros(n), logit_opacities=jnp.zeros(n),
+                          rgb=jnp.full((n, 3), 0.5), active=jnp.ones(n, bool))
+    noisy = perturb_map(gaussians, NoiseConfig(map_means_cm=2.0, map_rgb=0.1), jax.random.PRNGKey(0))
+    assert abs(float(jnp.std(noisy.means - 1.0)) - 0.02) < 0.001
+    assert abs(float(jnp.std(noisy.rgb - 0.5)) - 0.1) < 0.005
+    np.testing.assert_array_equal(np.asarray(noisy.log_scales), 0.0)
+    unchanged = perturb_map(gaussians, NoiseConfig(), jax.random.PRNGKey(0))
+    assert_trees_equal(unchanged, gaussians)
+
+
+def test_noise_changes_the_run_reproducibly_and_zero_noise_is_the_plain_run():
+    noisy_config = apply_overrides(tiny_config(), {"noise.depth_cm": "1.0", "noise.map_means_cm": "0.5"})
+    noisy = run_tiny(noisy_config)
+    assert trees_differ(noisy.outputs, run_tiny().outputs)
+    assert_trees_equal(run_tiny(noisy_config).outputs, noisy.outputs)  # same seed, same noise
+    zero = apply_overrides(tiny_config(), {"noise.depth_cm": "0", "noise.map_rgb": "0.0"})
+    assert_trees_equal(run_tiny(zero).outputs, run_tiny().outputs)
+    assert all_finite(noisy.outputs)
+
+
+def test_noise_levels_are_validated():
+    with pytest.raises(ValueError, match="noise.depth_cm"):
+        NoiseConfig(depth_cm=-1.0)

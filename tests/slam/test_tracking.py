@@ -1,0 +1,251 @@
+"""Camera tracking: recovery of a known SE(3) perturbation (Adam and LM), non-finite iterations, and CB-KNN's
+keyframe tracking (smoothed render, lambda_c = 0.6) in ``paper`` mode."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gsjax.camera import se3_exp, se3_log
+from gsjax.config_text import apply_overrides
+from gsjax.raster import render
+from gsjax.slam.losses import rendered_depth, tracking_loss
+from gsjax.slam.presets import with_cbknn_mode
+from gsjax.slam.tracking import TrackingProblem, _track_adam, track
+from gsjax.slam.views import render_view
+from tests.support.tiny_slam import first_frame_map, map_config, relative_gt_w2c, tiny_sequence
+
+track_jit = jax.jit(track)
+TRUE_FRAME = 2  # the true pose: frame 2's GT pose relative to frame 0 (not the identity)
+PERTURBATIONS = {
+    # (rho m, phi rad): 3-4 cm and about 1.5 degrees, i.e. about a pixel at 40x30.
+    "a": (0.03, -0.02, 0.02, 0.02, -0.015, 0.01),
+    "b": (-0.02, 0.03, -0.03, -0.01, 0.02, 0.015),
+}
+
+
+def tracking_config(optimizer: str, iters: int, mode: str = "off"):
+    return apply_overrides(with_cbknn_mode(map_config(), mode),
+                           {"tracking.optimizer": optimizer, "tracking.iters": str(iters)})
+
+
+@pytest.fixture(scope="module")
+def rendered_scene():
+    """(map from frame 0, observed colour, observed depth, true w2c): the observation is the map's own render at
+    the true pose (depth D / S where S > 0.5, else invalid), so the tracking loss is zero exactly there."""
+    gaussians = first_frame_map()
+    w2c_true = jnp.asarray(relative_gt_w2c()[TRUE_FRAME], jnp.float32)
+    config = map_config()
+    view = render_view(gaussians, w2c_true, tiny_sequence().intrinsics, config, False, 0.0)
+    depth = jnp.where(view.silhouette > 0.5, rendered_depth(view, config.tracking.normalized_depth), 0.0)
+    return gaussians, view.color, depth, w2c_true
+
+
+def pose_error(w2c, w2c_true):
+    """(translation norm m, rotation norm rad) of the left error exp(e) = w2c w2c_true^-1."""
+    e = np.asarray(se3_log(w2c @ jnp.linalg.inv(w2c_true)))
+    return np.linalg.norm(e[:3]), np.linalg.norm(e[3:])
+
+
+@pytest.mark.parametrize("perturbation", sorted(PERTURBATIONS))
+@pytest.mark.parametrize("optimizer, iters, strided", [("adam", 60, 0), ("lm", 10, 0), ("adam", 20, 40),
+                                                       ("lm", 5, 5)])
+def test_tracking_recovers_a_known_perturbation_of_a_rendered_map(rendered_scene, optimizer, iters, strided,
+                                                                  perturbation):
+    """On every pixel, and after ``strided`` iterations on a quarter of the pixels."""
+    gaussians, color, depth, w2c_true = rendered_scene
+    delta = jnp.asarray(PERTURBATIONS[perturbation], jnp.float32)
+    w2c_init = se3_exp(delta) @ w2c_true
+    config = apply_overrides(tracking_config(optimizer, iters), {"tracking.strided_iters": str(strided)})
+    problem = TrackingProblem(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, False, 0.0)
+    result = track_jit(problem, config)
+    trans, rot = pose_error(result.w2c, w2c_true)
+    # Measured: at most 5.3% (Adam, 60 iterations), 5.1% (Adam, 40 strided + 20) and 4e-6 (LM, 10 iterations) of
+    # the perturbation.
+    assert trans < 0.1 * np.linalg.norm(delta[:3])
+    assert rot < 0.1 * np.linalg.norm(delta[3:])
+    assert int(result.nonfinite) == 0
+    if optimizer == "adam":
+        assert int(result.iterations) == strided + iters
+    start = pose_error(w2c_init, w2c_true)
+    assert np.allclose(start, (np.linalg.norm(delta[:3]), np.linalg.norm(delta[3:])), rtol=1e-3)
+
+
+@pytest.mark.parametrize("row, col", [(0, 0), (0, 1), (1, 0), (1, 1)])
+def test_a_strided_render_is_the_full_render_at_every_other_pixel(rendered_scene, row, col):
+    """What the strided tracking iterations see: the render at ``Intrinsics.strided`` with a quarter of the
+    dilation equals the full render's pixels (2 i + row, 2 j + col), and so does the observation."""
+    from gsjax.slam.views import strided_observation, strided_setup
+
+    gaussians, color, depth, w2c_true = rendered_scene
+    intrinsics = tiny_sequence().intrinsics
+    full = render(gaussians, w2c_true, intrinsics, map_config().raster)
+    strided = render(gaussians, w2c_true, intrinsics.strided(row, col), strided_setup(map_config(), intrinsics).raster)
+    for name in ("color", "depth", "silhouette"):
+        np.testing.assert_allclose(np.asarray(getattr(strided, name)),
+                                   np.asarray(getattr(full, name))[row::2, col::2], atol=2e-6)
+    np.testing.assert_array_equal(np.asarray(strided_observation(color, row, col)), np.asarray(color)[row::2, col::2])
+    assert int(strided.stats.tiles_overflowed) == 0
+
+
+def test_strided_iterations_descend_the_full_loss_and_only_full_ones_pick_the_pose(rendered_scene):
+    """The strided loss is 4x the tracking loss on the strided grid; 40 strided iterations and one full one bring
+    the full loss far below the start's, and the result is the pose of that one full iteration (pre_step), its
+    loss the full loss."""
+    from gsjax.slam.tracking import strided_problem, tracking_objective
+
+    gaussians, color, depth, w2c_true = rendered_scene
+    w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
+    intrinsics = tiny_sequence().intrinsics
+    config = apply_overrides(tracking_config("adam", 1), {"tracking.strided_iters": "40"})
+    problem = TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0)
+    objective, color_s, depth_s = strided_problem(problem, config)(3)
+    full = tracking_objective(problem, config)
+    zero = jnp.zeros(6, jnp.float32)
+    view = full.view_at(zero)
+    on_grid = view._replace(color=view.color[1::2, 1::2], depth=view.depth[1::2, 1::2],
+                            silhouette=view.silhouette[1::2, 1::2], depth_sq=view.depth_sq[1::2, 1::2])
+    expected = 4.0 * tracking_loss(on_grid, color_s, depth_s, full.lambda_color, config.tracking.lambda_depth,
+                                   config.tracking.sil_threshold, config.tracking.normalized_depth)
+    np.testing.assert_allclose(float(objective.loss(zero)), float(expected), rtol=1e-5)
+    result = track_jit(TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0), config)
+    assert int(result.iterations) == 41
+    delta = se3_log(result.w2c @ jnp.linalg.inv(w2c_init))
+    assert float(full.loss(delta)) < 0.2 * float(full.loss(zero))
+    np.testing.assert_allclose(float(result.loss), float(full.loss(delta)), rtol=1e-4)
+
+
+# ------------------------------------------------------------------------------------------ non-finite handling
+
+
+def nan_pixel(color):
+    return color.at[12, 20, 1].set(jnp.nan)
+
+
+@pytest.mark.parametrize("optimizer, iters, counted", [("adam", 60, 60), ("lm", 10, 1)])
+def test_a_frame_with_a_nan_pixel_keeps_the_initial_pose_and_counts_nonfinite(rendered_scene, optimizer, iters,
+                                                                              counted):
+    """A NaN colour makes every loss (Adam) or the solve (LM) non-finite: no step is taken, the pose handed in is
+    returned unchanged, and the skipped iterations (Adam) or the unusable solve (LM) are counted."""
+    gaussians, color, depth, w2c_true = rendered_scene
+    w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
+    config = tracking_config(optimizer, iters)
+    problem = TrackingProblem(gaussians, nan_pixel(color), depth, w2c_init, tiny_sequence().intrinsics, False, 0.0)
+    result = track_jit(problem, config)
+    np.testing.assert_array_equal(np.asarray(result.w2c), np.asarray(w2c_init))
+    assert int(result.nonfinite) == counted
+
+
+def test_adam_skips_non_finite_iterations_and_keeps_the_best_finite_pose():
+    """Loss |delta - target|^2 that turns NaN once rho_x exceeds 0.011: Adam walks towards the target (about
+    lr_trans per step) until a step lands past 0.011; from there no step is taken (the pose stays put) and every
+    later iteration is non-finite. The result is the lowest-loss finite pose (pre_step: the pose whose loss was
+    measured), and the count is exact."""
+    config = map_config()
+    config = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, iters=20, lr_trans=2e-3))
+    target = jnp.asarray([1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+
+    def loss_fn(delta):
+        return jnp.where(delta[0] > 0.011, jnp.nan, jnp.sum((delta - target) ** 2))
+
+    w2c_init = jnp.asarray(relative_gt_w2c()[TRUE_FRAME], jnp.float32)
+    result = jax.jit(lambda w: _track_adam(loss_fn, w, config))(w2c_init)
+    best = np.asarray(se3_log(result.w2c @ jnp.linalg.inv(w2c_init)))
+    # Adam's first steps have size lr: rho_x = 0.002 k after k steps, so the losses at k = 0..5 are finite and the
+    # loss after the 6th step (rho_x = 0.012) is not: 6 finite iterations, 14 skipped, best at k = 5.
+    np.testing.assert_allclose(best, [0.01, 0, 0, 0, 0, 0], atol=2e-5)
+    assert int(result.nonfinite) == 20 - 6
+    np.testing.assert_allclose(float(result.loss), float(loss_fn(jnp.asarray(best, jnp.float32))), rtol=1e-4)
+
+
+def test_converge_window_stops_once_the_loss_stops_falling_and_zero_runs_every_iteration():
+    """Loss |delta - target|^2 with the target 1 cm away: Adam (lr 2 mm) reaches it within ~6 steps, then jitters
+    around it. With converge_window 3 the loop stops 3 iterations after the last drop of 1e-3 (relative), well
+    before the cap, at the same best pose; with 0 (SplaTAM) all iterations run."""
+    config = map_config()
+    target = jnp.asarray([0.01, 0.0, 0.0, 0.0, 0.0, 0.0])
+
+    def loss_fn(delta):
+        return jnp.sum((delta - target) ** 2) + 1e-6
+
+    def tracked(window):
+        tracking = dataclasses.replace(config.tracking, iters=60, lr_trans=2e-3, converge_window=window,
+                                       converge_rtol=1e-3)
+        run = jax.jit(lambda w: _track_adam(loss_fn, w, dataclasses.replace(config, tracking=tracking)))
+        return run(jnp.eye(4, dtype=jnp.float32))
+
+    full, stopped = tracked(0), tracked(3)
+    assert int(full.iterations) == 60
+    assert 6 <= int(stopped.iterations) < 30
+    losses = [float(r.loss) for r in (full, stopped)]
+    assert losses[1] <= 2 * losses[0] + 1e-6, losses  # both at the target within Adam's jitter
+    # The stopped run ends at the target too (within Adam's step of 2 mm).
+    assert np.linalg.norm(np.asarray(se3_log(stopped.w2c))[:3] - np.asarray(target[:3])) < 2e-3
+
+
+# ------------------------------------------------------------------------ CB-KNN keyframe tracking (paper mode)
+
+
+def test_paper_mode_renders_keyframes_smoothed_and_everything_else_canonically(rendered_scene):
+    gaussians, _, _, w2c_true = rendered_scene
+    intrinsics = tiny_sequence().intrinsics
+    paper, off = with_cbknn_mode(map_config(), "paper"), map_config()
+    canonical = render(gaussians, w2c_true, intrinsics, off.raster)
+    smoothed = render_view(gaussians, w2c_true, intrinsics, paper, True, 0.3)
+    unsmoothed = render_view(gaussians, w2c_true, intrinsics, paper, False, 0.3)
+    ignored = render_view(gaussians, w2c_true, intrinsics, off, True, 0.3)  # off mode never smooths
+    for view in (unsmoothed, ignored):
+        np.testing.assert_array_equal(np.asarray(view.color), np.asarray(canonical.color))
+        np.testing.assert_array_equal(np.asarray(view.depth), np.asarray(canonical.depth))
+    assert float(jnp.max(jnp.abs(smoothed.color - canonical.color))) > 1e-3
+    assert float(jnp.max(jnp.abs(smoothed.depth - canonical.depth))) > 1e-4
+
+
+@pytest.fixture(scope="module")
+def one_iteration_tracking(rendered_scene):
+    """Tracking with a single Adam iteration and SplaTAM's ``post_step`` candidate: the returned loss is the loss
+    at the initial pose, the returned pose is one gradient step from it."""
+    gaussians, color, depth, w2c_true = rendered_scene
+    w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
+
+    def run(mode, smooth, **cbknn):
+        config = apply_overrides(tracking_config("adam", 1, mode), {"tracking.best_pose": "post_step"})
+        config = dataclasses.replace(config, cbknn=dataclasses.replace(config.cbknn, **cbknn))
+        problem = TrackingProblem(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, smooth, 0.3)
+        return track_jit(problem, config)
+
+    return run, w2c_init
+
+
+def test_paper_mode_tracks_non_keyframes_exactly_as_off_mode(one_iteration_tracking):
+    run, w2c_init = one_iteration_tracking
+    off, paper = run("off", False), run("paper", False)
+    assert not np.array_equal(np.asarray(off.w2c), np.asarray(w2c_init))  # a step was taken
+    np.testing.assert_array_equal(np.asarray(paper.w2c), np.asarray(off.w2c))
+    assert float(paper.loss) == float(off.loss)
+    keyframe = run("paper", True)
+    assert not np.array_equal(np.asarray(keyframe.w2c), np.asarray(off.w2c))
+    assert float(keyframe.loss) != float(off.loss)
+
+
+def test_paper_mode_keyframe_tracking_uses_the_smoothed_render_and_the_keyframe_colour_weight(
+    rendered_scene, one_iteration_tracking
+):
+    gaussians, color, depth, _ = rendered_scene
+    run, w2c_init = one_iteration_tracking
+    config = with_cbknn_mode(map_config(), "paper")
+    tc = config.tracking
+    smoothed = render_view(gaussians, w2c_init, tiny_sequence().intrinsics, config, True, 0.3)
+
+    def expected(lambda_color):
+        return float(tracking_loss(smoothed, color, depth, lambda_color, tc.lambda_depth, tc.sil_threshold,
+                                   tc.normalized_depth))
+
+    assert config.cbknn.lambda_color_keyframe == 0.6 and tc.lambda_color == 0.5
+    np.testing.assert_allclose(float(run("paper", True).loss), expected(0.6), rtol=1e-5)
+    np.testing.assert_allclose(float(run("paper", True, lambda_color_keyframe=0.2).loss), expected(0.2), rtol=1e-5)
+    assert abs(expected(0.6) - expected(0.5)) > 1e-3 * expected(0.5)  # the weight is visible in the loss

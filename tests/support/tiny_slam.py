@@ -1,0 +1,166 @@
+"""Shared tiny setup of the SLAM tests: a 40x30 synthetic room, a tiny config, and tree comparisons.
+
+Compilation dominates on CPU (about 12 s per distinct SLAM scan program), so every test that runs the scan uses
+the same static config (:func:`tiny_config`, per CB-KNN mode) and the same shapes (``FRAMES`` frames, chunks of
+``CHUNK``, capacity ``CAPACITY`` = the runner's default 2 H W, keyframe capacity of a ``FRAMES``-frame run). The
+runner and CLI tests are given options that build the very same program, so within one pytest process each
+program compiles once.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gsjax.app.runner import RunOptions
+from gsjax.config_text import apply_overrides
+from gsjax.data.frame import Frame, stack_frames, to_device
+from gsjax.data.sequence import Sequence
+from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+from gsjax.slam.config import SlamConfig
+from gsjax.slam.presets import preset, with_cbknn_mode
+from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
+
+WIDTH, HEIGHT = 40, 30  # = the default synthetic 160x120 with `gsjax run --downscale 4`
+FRAMES = 6
+CHUNK = 3
+CAPACITY = 2 * WIDTH * HEIGHT  # the runner's default capacity
+# Tiny iteration counts: the scans over iterations compile to the same program whatever the count. No strided
+# iterations (their renders would add to every tiny program's compile time; test_slam_tracking and test_slam_map
+# test them).
+TINY_OVERRIDES = {"tracking.iters": "3", "tracking.strided_iters": "0", "mapping.iters": "2",
+                  "mapping.strided_iters": "0"}
+
+
+# `gsjax run` / `gsjax sweep` flags for the tiny run (after --out): the synthetic room at 40x30, FRAMES frames.
+TINY_RUN = ["--dataset", "synthetic", "--downscale", "4", "--max-frames", str(FRAMES), "--chunk", str(CHUNK),
+            "--no-progress"] + [token for name, value in TINY_OVERRIDES.items() for token in (f"--{name}", value)]
+
+
+def run_options(out, **changes) -> RunOptions:
+    """The runner's options for a tiny run into ``out``: a chunk and a checkpoint every CHUNK frames, no progress."""
+    return RunOptions(out=out, **{"chunk": CHUNK, "checkpoint_every": CHUNK, "progress": False, **changes})
+
+
+@functools.lru_cache(maxsize=None)
+def tiny_sequence(num_frames: int = FRAMES) -> Sequence:
+    """The synthetic room at 40x30 (exact depth, every pixel valid, GT poses)."""
+    return synthetic_sequence(SyntheticConfig(width=WIDTH, height=HEIGHT, num_frames=num_frames))
+
+
+def tiny_config(mode: str = "off") -> SlamConfig:
+    """The ``cpu`` preset at the tiny width with CB-KNN ``mode`` and tiny iteration counts, built exactly as ``gsjax
+    run --preset cpu --cbknn MODE`` with :data:`TINY_OVERRIDES` builds it for 40x30 frames (so the CLI
+    tests reuse the compiled scan and record this very config)."""
+    return apply_overrides(with_cbknn_mode(preset("cpu", WIDTH), mode), TINY_OVERRIDES)
+
+
+def frames(begin: int, end: int, num_frames: int = FRAMES) -> Frame:
+    """Frames [begin, end) of :func:`tiny_sequence`, stacked along a leading axis, on device."""
+    sequence = tiny_sequence(num_frames)
+    return to_device(stack_frames([sequence.read_host(i) for i in range(begin, end)]))
+
+
+def initial(seed: int = 0) -> SlamState:
+    """The state the runner starts a ``FRAMES``-frame run from (default capacity)."""
+    config = tiny_config()
+    return initial_state(CAPACITY, HEIGHT, WIDTH, keyframe_capacity_for(FRAMES, config.keyframe_every), FRAMES, seed)
+
+
+def relative_gt_w2c(num_frames: int = FRAMES) -> np.ndarray:
+    """[T, 4, 4] ground-truth world-to-camera poses in the SLAM world frame (the first camera), float64."""
+    _, c2w, _ = tiny_sequence(num_frames).gt_trajectory()
+    return np.linalg.inv(np.linalg.inv(c2w[0]) @ c2w)
+
+
+def _leaves(tree):
+    return jax.tree_util.tree_leaves_with_path(tree)
+
+
+def assert_trees_equal(actual, expected) -> None:
+    """Same structure and every leaf bit for bit equal (NaNs equal)."""
+    assert jax.tree_util.tree_structure(actual) == jax.tree_util.tree_structure(expected)
+    for (path, a), b in zip(_leaves(actual), jax.tree_util.tree_leaves(expected)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path))
+
+
+def assert_trees_close(actual, expected, rtol: float, atol: float) -> None:
+    """Same structure; integer and bool leaves equal, floating leaves within ``rtol``/``atol``."""
+    assert jax.tree_util.tree_structure(actual) == jax.tree_util.tree_structure(expected)
+    for (path, a), b in zip(_leaves(actual), jax.tree_util.tree_leaves(expected)):
+        a, b = np.asarray(a), np.asarray(b)
+        name = jax.tree_util.keystr(path)
+        if np.issubdtype(a.dtype, np.floating):
+            np.testing.assert_allclose(a, b, rtol=rtol, atol=atol, err_msg=name)
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+def trees_differ(a, b) -> bool:
+    """Whether any floating leaf differs (to show that a comparison is not vacuous)."""
+    return any(
+        not np.array_equal(np.asarray(x), np.asarray(y))
+        for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b))
+    )
+
+
+def all_finite(tree) -> bool:
+    return all(
+        bool(jnp.all(jnp.isfinite(x)))
+        for x in jax.tree_util.tree_leaves(tree)
+        if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
+    )
+
+
+# ------------------------------------------------------------------------------ a one-frame map, and its mapping
+
+MAP_VIEWS = (0, 2)  # frames in the mapping window of the map fixtures (GT poses)
+
+
+def map_config() -> SlamConfig:
+    """The ``cpu`` preset (normalised-depth tracking) with 30 mapping iterations, every iteration on every pixel."""
+    return apply_overrides(preset("cpu"), {"mapping.iters": "30", "mapping.strided_iters": "0",
+                                           "tracking.strided_iters": "0"})
+
+
+def first_frame_map():
+    """SplaTAM's initialisation from frame 0 (one Gaussian per pixel, world = first camera), H W slots."""
+    from gsjax.gaussians import gaussians_from_rgbd
+
+    frame = tiny_sequence()[0]
+    return gaussians_from_rgbd(frame.color, frame.depth, tiny_sequence().intrinsics, jnp.eye(4, dtype=jnp.float32))
+
+
+def window_frames(frame_ids=MAP_VIEWS):
+    """:class:`gsjax.slam.mapping.WindowFrames` of the given frames at their GT poses (all keyframes, all valid)."""
+    from gsjax.slam.mapping import WindowFrames
+
+    chunk = frames(0, FRAMES)
+    ids = np.asarray(frame_ids)
+    count = len(ids)
+    return WindowFrames(color=chunk.color[ids], depth=chunk.depth[ids],
+                 w2c=jnp.asarray(relative_gt_w2c()[ids], jnp.float32), gamma=jnp.zeros(count, jnp.float32),
+                 keyframe=jnp.ones(count, bool), valid=jnp.ones(count, bool))
+
+
+def scene_radius(config: SlamConfig):
+    return jnp.max(tiny_sequence()[0].depth) / config.scene_radius_depth_ratio
+
+
+@functools.lru_cache(maxsize=None)
+def _map_window_jit():
+    from gsjax.slam.mapping import map_window
+
+    return jax.jit(map_window)
+
+
+def run_map_window(gaussians, seed: int = 0, config: SlamConfig | None = None, first_map=False):
+    """``map_window`` over :func:`window_frames` with :func:`map_config` (one compiled program for all callers that
+    keep the config's static fields)."""
+    config = map_config() if config is None else config
+    return _map_window_jit()(jax.random.PRNGKey(seed), gaussians, window_frames(), tiny_sequence().intrinsics, config,
+                             scene_radius(config), jnp.asarray(first_map))
+
