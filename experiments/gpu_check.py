@@ -3,8 +3,8 @@
     python experiments/gpu_check.py OUT
 
 Reads ``OUT/steps.jsonl`` (status and seconds of each step), ``OUT/tests.jsonl`` (Pallas vs XLA differences from
-tests/raster/test_gpu.py), ``OUT/bench.json`` (gsjax bench) and ``OUT/run/metrics.json`` (the 40-frame run), and sets the
-issue's targets beside the figures: a tracking iteration at 1200x680 <= 3 ms, >= 5 frames/s at full resolution,
+tests/raster/test_gpu.py), ``OUT/bench.json`` (gsjax bench) and ``OUT/run/metrics.json`` (the 40-frame run), and sets
+the issue's targets beside the figures: a tracking iteration at 1200x680 <= 3 ms, >= 5 frames/s at full resolution,
 Pallas >= 3x faster than XLA.
 """
 

@@ -1,4 +1,5 @@
-"""Standard 3DGS PLY export/import of a :class:`~gsjax.gaussians.Gaussians` map (plain numpy, no plyfile).
+"""Standard 3DGS PLY export/import of a :class:`~gsjax.gaussians.Gaussians` map (plain numpy; not plyfile, which the
+3DGS reference code uses: it is GPL-3.0, and a copyleft runtime dependency would bind gsjax's users).
 
 Layout (binary little-endian, one ``vertex`` element of float32 properties, the order of the original 3DGS code,
 with SH degree 0 so there are no ``f_rest_*``) that common splat viewers open:
