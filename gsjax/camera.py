@@ -84,7 +84,7 @@ class Intrinsics:
             width=self.width // factor,
         )
 
-    def strided(self, row, col) -> "Intrinsics":
+    def strided(self, row: int | jax.Array, col: int | jax.Array) -> "Intrinsics":
         """Intrinsics of every other pixel of this image: output pixel (i, j) is input pixel (2 i + ``row``, 2 j +
         ``col``) (offsets 0 or 1, may be traced), so ``fx' = fx / 2``, ``cx' = (cx - col) / 2``; sizes floored.
         Rendered with the dilation divided by 4 (the 2D covariance shrinks by 4 in these pixels), the render is the
@@ -256,7 +256,7 @@ def constant_velocity(w2c_prev2: jax.Array, w2c_prev1: jax.Array) -> jax.Array:
     return w2c_prev1 @ se3_inverse(w2c_prev2) @ w2c_prev1
 
 
-def rigidity_error(transform: jax.Array) -> jax.Array:
+def rigidity_error(transform: jax.Array | np.ndarray) -> jax.Array | np.ndarray:
     """How far 4x4 matrices [..., 4, 4] are from rigid transforms -> [...]: max of |R^T R - I|, |det R - 1| and
     |last row - e4| (0 for a rigid transform). Used by the renderer on w2c and by the dataset readers on GT poses.
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import numpy as np
 
 
-def is_checkable(value) -> bool:
+def is_checkable(value: Any) -> bool:
     """Whether ``value`` (a number, an array or a pytree of them) can be checked now: every leaf a concrete number
     or array, none a tracer (under jit/vmap/grad), and at least one leaf (not a placeholder JAX puts in a pytree,
     such as ``None`` in a vmap ``in_axes`` tree), and no array sharded over other processes (checked where built)."""

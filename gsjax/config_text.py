@@ -6,10 +6,16 @@ from __future__ import annotations
 
 import dataclasses
 import typing
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
 from gsjax.slam.config import SlamConfig
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+_Config = TypeVar("_Config", bound="DataclassInstance")
 
 
 def _convert(text: str, current, path: str):
@@ -34,7 +40,7 @@ def _convert(text: str, current, path: str):
     raise ValueError(f"--{path}: cannot read {text!r} as {type(current).__name__}")
 
 
-def apply_overrides(config, overrides: dict[str, str]):
+def apply_overrides(config: _Config, overrides: dict[str, str]) -> _Config:
     """A copy of ``config`` with dotted field names set from strings, e.g. ``{"tracking.iters": "60"}``.
 
     Raises ValueError naming the field for unknown names and unreadable or invalid values.
@@ -58,9 +64,9 @@ def _set_path(obj, parts: list[str], text: str, path: str):
         raise ValueError(f"--{path}: {err}") from None
 
 
-def config_to_dict(config) -> dict:
+def config_to_dict(config: DataclassInstance) -> dict[str, Any]:
     """A JSON-friendly nested dict of a config (for ``config.json``)."""
-    out = {}
+    out: dict[str, Any] = {}
     for field in dataclasses.fields(config):
         value = getattr(config, field.name)
         if dataclasses.is_dataclass(value):
@@ -73,10 +79,18 @@ def config_to_dict(config) -> dict:
     return out
 
 
-def config_from_dict(data: dict, base=None):
+@typing.overload
+def config_from_dict(data: dict[str, Any], base: None = None) -> SlamConfig: ...
+
+
+@typing.overload
+def config_from_dict(data: dict[str, Any], base: _Config) -> _Config: ...
+
+
+def config_from_dict(data: dict[str, Any], base: DataclassInstance | None = None) -> DataclassInstance:
     """Inverse of :func:`config_to_dict` (unknown keys are errors)."""
     base = SlamConfig() if base is None else base
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     hints = typing.get_type_hints(type(base))
     for key, value in data.items():
         if key not in hints:

@@ -7,12 +7,16 @@ free slots; capacity is a static shape, grown by the caller (never silently).
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from gsjax.checks import is_checkable
+
+if TYPE_CHECKING:
+    from gsjax.camera import Intrinsics
 
 
 @jax.tree_util.register_dataclass
@@ -62,10 +66,10 @@ class Gaussians:
 
     @staticmethod
     def create(
-        means,
-        rgb,
-        scales,
-        opacities=0.5,
+        means: jax.typing.ArrayLike,
+        rgb: jax.typing.ArrayLike,
+        scales: jax.typing.ArrayLike,
+        opacities: jax.typing.ArrayLike = 0.5,
         capacity: int | None = None,
     ) -> "Gaussians":
         """Gaussians from centres [n, 3] (m), colours [n, 3], scales (std-dev, m; [n] or scalar) and opacities
@@ -161,7 +165,7 @@ def check_gaussians(gaussians: Gaussians, name: str = "gaussians") -> None:
 def gaussians_from_rgbd(
     color: jax.Array,
     depth: jax.Array,
-    intrinsics,
+    intrinsics: Intrinsics,
     c2w: jax.Array,
     mask: jax.Array | None = None,
     opacity: float = 0.5,

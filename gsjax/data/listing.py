@@ -11,7 +11,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -136,7 +138,7 @@ def numbered_files(directory: Path, pattern: str, expected: str | None) -> dict[
     regex = re.compile(pattern)
     if not directory.is_dir():
         raise DatasetError(f"{directory}: directory is missing")
-    found = {}
+    found: dict[int, Path] = {}
     for path in directory.iterdir():
         match = regex.fullmatch(path.name)
         if match:
@@ -149,7 +151,8 @@ def numbered_files(directory: Path, pattern: str, expected: str | None) -> dict[
     return dict(sorted(found.items()))
 
 
-def require_color_for_depth(colors: dict[int, Path], depth_dir: Path, depth_pattern: str, color_stem) -> None:
+def require_color_for_depth(colors: dict[int, Path], depth_dir: Path, depth_pattern: str,
+                            color_stem: Callable[[int], Path]) -> None:
     """DatasetError naming the colour image a frame lacks when a depth image in ``depth_dir`` (``depth_pattern``, as
     for :func:`numbered_files`) is numbered as no colour image is: the frames of a numbered layout are its colour
     images, so such a frame would be dropped without a word. ``color_stem(number)`` is the expected colour path
@@ -173,7 +176,7 @@ def files_per_frame(
     pose_paths: list[Path],
     intrinsics: Intrinsics,
     depth_scale: float,
-    **options,
+    **options: Any,
 ) -> FrameFiles:
     """The listing of a layout with one colour, depth and pose file per frame, found by frame number (ScanNet,
     7-Scenes): ``colors`` from :func:`numbered_files`; the timestamp of a frame is its number; a missing pose file

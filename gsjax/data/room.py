@@ -18,10 +18,11 @@ Variants:
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.camera import make_intrinsics
+from gsjax.camera import Intrinsics, make_intrinsics
 from gsjax.data.synthetic import camera_trajectory, render_view
 from gsjax.gaussians import Gaussians, gaussians_from_rgbd
 
@@ -75,13 +76,14 @@ def _translation(x: float, y: float, z: float) -> np.ndarray:
     return moved
 
 
-def room_intrinsics(height: int, width: int):
+def room_intrinsics(height: int, width: int) -> Intrinsics:
     """The pinhole camera the room is mapped and seen with: about 64 degrees across, centred."""
     fx = 0.8 * width
     return make_intrinsics(fx, fx, (width - 1) / 2, (height - 1) / 2, height, width)
 
 
-def dense_surface_map(height: int, width: int, variant: str = "mapped", seed: int = 0):
+def dense_surface_map(height: int, width: int, variant: str = "mapped",
+                      seed: int = 0) -> tuple[Gaussians, jax.Array, Intrinsics]:
     """(gaussians, w2c, intrinsics) of a SplaTAM-density map of the analytic room and the view it is seen from."""
     intrinsics = room_intrinsics(height, width)
     w2c = jnp.asarray(np.linalg.inv(_viewpoint()), jnp.float32)

@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
-def associate_timestamps(est_timestamps, gt_timestamps, max_dt: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+
+def associate_timestamps(
+    est_timestamps: npt.ArrayLike, gt_timestamps: npt.ArrayLike, max_dt: float = 0.02
+) -> tuple[np.ndarray, np.ndarray]:
     """Match every estimated timestamp to the nearest ground-truth timestamp within ``max_dt`` seconds.
 
     This is evo's nearest-time association when the estimate is the shorter (or equally long) trajectory, the

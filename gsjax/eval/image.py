@@ -105,7 +105,7 @@ def _avg_pool2(image: jax.Array) -> jax.Array:
 
 
 @functools.partial(jax.jit, static_argnames="weights")
-def ms_ssim(image: jax.Array, reference: jax.Array, weights=MS_SSIM_WEIGHTS) -> jax.Array:
+def ms_ssim(image: jax.Array, reference: jax.Array, weights: tuple[float, ...] = MS_SSIM_WEIGHTS) -> jax.Array:
     """Multi-scale SSIM as ``pytorch_msssim.ms_ssim(data_range=1)`` with its defaults: 'valid' 11-px Gaussian
     windows (sigma 1.5), 2x average pooling between scales, per channel
     ``prod_{s<last} relu(cs_s)^w_s * relu(ssim_last)^w_last``, then the mean over channels.
@@ -156,7 +156,8 @@ def ms_ssim_scales(height: int, width: int) -> int:
 
 
 @jax.jit
-def render_metrics_splatam(color, depth, color_gt, depth_gt) -> dict[str, jax.Array]:
+def render_metrics_splatam(color: jax.Array, depth: jax.Array, color_gt: jax.Array,
+                           depth_gt: jax.Array) -> dict[str, jax.Array]:
     """One frame's metrics as SplaTAM's final evaluation computes them (method_spec B.3).
 
     Both colour images are multiplied by the valid-GT-depth mask (invalid pixels count as zero error but stay in

@@ -19,12 +19,15 @@ on its surviving frames).
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from gsjax.camera import invert_rigid, rotation_angle_rad
 from gsjax.eval.association import associate_timestamps
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 # Fewest frames for which a 3D rigid alignment is determined (non-collinear points).
 MIN_FRAMES = 3
@@ -143,11 +146,11 @@ def umeyama_alignment(source: np.ndarray, target: np.ndarray, with_scale: bool =
 # ------------------------------------------------------------------------------------------- validity
 
 
-def _as_poses(c2w: np.ndarray, name: str) -> np.ndarray:
-    c2w = np.asarray(c2w, np.float64)
-    if c2w.ndim != 3 or c2w.shape[1:] != (4, 4):
-        raise ValueError(f"{name} must have shape [N, 4, 4], got {list(c2w.shape)}")
-    return c2w
+def _as_poses(c2w: npt.ArrayLike, name: str) -> np.ndarray:
+    poses = np.asarray(c2w, np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise ValueError(f"{name} must have shape [N, 4, 4], got {list(poses.shape)}")
+    return poses
 
 
 def _frames_used(est_c2w, gt_c2w, valid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -176,7 +179,9 @@ def _frames_used(est_c2w, gt_c2w, valid) -> tuple[np.ndarray, np.ndarray, np.nda
 # ----------------------------------------------------------------------------------------------- metrics
 
 
-def ate_rmse_c2w(est_c2w, gt_c2w, valid=None, with_scale: bool = False) -> AteResult:
+def ate_rmse_c2w(
+    est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike, valid: npt.ArrayLike | None = None, with_scale: bool = False
+) -> AteResult:
     """ATE as evo reports it: RMSE (m) of camera centres after aligning the estimate onto the ground truth.
 
     Args:
@@ -191,7 +196,7 @@ def ate_rmse_c2w(est_c2w, gt_c2w, valid=None, with_scale: bool = False) -> AteRe
     return AteResult(_rmse(errors), errors, alignment, used)
 
 
-def ate_so_far(est_c2w, gt_c2w, gt_valid) -> float | None:
+def ate_so_far(est_c2w: np.ndarray, gt_c2w: npt.ArrayLike, gt_valid: npt.ArrayLike) -> float | None:
     """ATE RMSE (m) of the first ``len(est_c2w)`` frames against ``gt_c2w`` [>= n, 4, 4] where ``gt_valid``, or
     None while fewer than ``MIN_FRAMES`` of them have ground truth (a run in progress)."""
     n = len(est_c2w)
@@ -201,7 +206,8 @@ def ate_so_far(est_c2w, gt_c2w, gt_valid) -> float | None:
         return None
 
 
-def ground_truth_on_estimate(est_c2w, gt_c2w, valid=None) -> tuple[np.ndarray, np.ndarray] | None:
+def ground_truth_on_estimate(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike,
+                             valid: npt.ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """The ground truth drawn in the estimate's world frame, for display: (the frames with ground truth and a finite
     estimate [n] int, their GT poses [n, 4, 4]), or None when there is no such frame.
 
@@ -220,7 +226,8 @@ def ground_truth_on_estimate(est_c2w, gt_c2w, valid=None) -> tuple[np.ndarray, n
     return frames, est[first] @ invert_rigid(gt[first]) @ gt[frames]
 
 
-def ate_splatam_mean_w2c(est_c2w, gt_c2w, valid=None) -> AteResult:
+def ate_splatam_mean_w2c(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike,
+                         valid: npt.ArrayLike | None = None) -> AteResult:
     """SplaTAM's "ATE RMSE" (method_spec B.1): the MEAN distance (m) between w2c translation columns after rigid
     Horn alignment. Not an RMSE and not camera centres; use it only to compare with SplaTAM's published numbers.
 
@@ -240,7 +247,7 @@ def ate_splatam_mean_w2c(est_c2w, gt_c2w, valid=None) -> AteResult:
     return AteResult(_mean(errors), errors, alignment, used)
 
 
-def rpe(est_c2w, gt_c2w, valid=None) -> RpeResult:
+def rpe(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike, valid: npt.ArrayLike | None = None) -> RpeResult:
     """Relative pose error over consecutive frames (evo's RPE with delta = 1 frame).
 
     For each pair (i, i+1) where both frames are used, ``E = (Q_i^-1 Q_{i+1})^-1 (P_i^-1 P_{i+1})`` with Q the GT
@@ -278,11 +285,11 @@ def _finite_or_none(x: float) -> float | None:
 
 
 def evaluate_trajectory(
-    est_timestamps,
-    est_c2w,
-    gt_timestamps,
-    gt_c2w,
-    gt_valid=None,
+    est_timestamps: npt.ArrayLike,
+    est_c2w: npt.ArrayLike,
+    gt_timestamps: npt.ArrayLike,
+    gt_c2w: npt.ArrayLike,
+    gt_valid: npt.ArrayLike | None = None,
     max_dt: float = 0.02,
     with_scale: bool = False,
 ) -> dict:

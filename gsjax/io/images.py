@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import matplotlib
@@ -16,8 +17,11 @@ import numpy as np
 
 from gsjax.io.atomic import atomic_write_bytes
 
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
-def to_uint8(color) -> np.ndarray:
+
+def to_uint8(color: npt.ArrayLike) -> np.ndarray:
     """[H, W, 3] float in [0, 1] -> uint8 (clipped, rounded to nearest); uint8 passes through."""
     color = np.asarray(color)
     if color.ndim != 3 or color.shape[-1] != 3:
@@ -40,7 +44,8 @@ def _percentile_range(depth: np.ndarray, valid: np.ndarray) -> tuple[float, floa
     return tuple(np.percentile(depth[valid], [1, 99])) if valid.any() else (0.0, 1.0)
 
 
-def colorize_depth(depth, vmin: float | None = None, vmax: float | None = None, cmap: str = "turbo") -> np.ndarray:
+def colorize_depth(depth: npt.ArrayLike, vmin: float | None = None, vmax: float | None = None,
+                   cmap: str = "turbo") -> np.ndarray:
     """Depth [H, W] (m) -> uint8 RGB [H, W, 3] through a matplotlib colour map; invalid pixels are black.
 
     The range defaults to the 1st-99th percentile of the valid depths (so one outlier does not wash the image out).
@@ -61,13 +66,14 @@ DEPTH_ERROR_RANGE_M = 0.10
 LABEL_HEIGHT = 22  # px of the label strip above each tile
 
 
-def colorize_error(error, vmax: float, valid=None, cmap: str = "inferno") -> np.ndarray:
+def colorize_error(error: npt.ArrayLike, vmax: float, valid: npt.ArrayLike | None = None,
+                   cmap: str = "inferno") -> np.ndarray:
     """Absolute error [H, W] -> uint8 RGB [H, W, 3] through ``cmap`` over [0, vmax] (clipped); pixels outside
     ``valid`` (and non-finite ones) are black."""
     error = np.asarray(error, np.float64)
-    valid = np.isfinite(error) if valid is None else np.asarray(valid, bool) & np.isfinite(error)
-    rgb = matplotlib.colormaps[cmap](np.clip(np.where(valid, error, 0.0) / vmax, 0.0, 1.0))[..., :3]
-    return to_uint8(np.where(valid[..., None], rgb, 0.0))
+    shown = np.isfinite(error) if valid is None else np.asarray(valid, bool) & np.isfinite(error)
+    rgb = matplotlib.colormaps[cmap](np.clip(np.where(shown, error, 0.0) / vmax, 0.0, 1.0))[..., :3]
+    return to_uint8(np.where(shown[..., None], rgb, 0.0))
 
 
 def _labelled(tile: np.ndarray, label: str) -> np.ndarray:
@@ -77,7 +83,8 @@ def _labelled(tile: np.ndarray, label: str) -> np.ndarray:
     return np.concatenate([strip, tile], axis=0)
 
 
-def render_panel(color, color_gt, depth=None, depth_gt=None, *, min_width: int = 320, gap: int = 4) -> np.ndarray:
+def render_panel(color: npt.ArrayLike, color_gt: npt.ArrayLike, depth: npt.ArrayLike | None = None,
+                 depth_gt: npt.ArrayLike | None = None, *, min_width: int = 320, gap: int = 4) -> np.ndarray:
     """A labelled uint8 panel of a render against its input, for people to read.
 
     Columns ``render | input | |render - input|``; rows colour, then depth when both depths are given (shared
@@ -135,12 +142,12 @@ def save_rgb_png(path: str | os.PathLike, image: np.ndarray) -> Path:
     return atomic_write_bytes(path, _encode_png(cv2.cvtColor(image, cv2.COLOR_RGB2BGR)))
 
 
-def save_color_png(path: str | os.PathLike, color) -> Path:
+def save_color_png(path: str | os.PathLike, color: npt.ArrayLike) -> Path:
     """Write a colour image [H, W, 3] in [0, 1] as an 8-bit RGB PNG, atomically."""
     return save_rgb_png(path, to_uint8(color))
 
 
-def save_depth_png(path: str | os.PathLike, depth, scale: float = 1000.0) -> Path:
+def save_depth_png(path: str | os.PathLike, depth: npt.ArrayLike, scale: float = 1000.0) -> Path:
     """Write depth [H, W] (m) as a 16-bit PNG holding ``round(depth * scale)`` (1000: mm; TUM uses 5000), invalid
     pixels as 0, atomically. Raises ValueError if a valid depth does not fit in 16 bits at this scale."""
     depth, valid = _depth_and_valid(depth)

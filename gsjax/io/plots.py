@@ -10,6 +10,7 @@ import io
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -17,6 +18,9 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from gsjax.io.atomic import atomic_write_bytes
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 
@@ -36,13 +40,14 @@ def _save(fig: Figure, path: str | os.PathLike, dpi: int) -> Path:
 def top_view_axes(positions: np.ndarray) -> tuple[int, int]:
     """The two coordinate axes with the largest extent of ``positions`` [N, 3], in increasing order."""
     extent = np.nanmax(positions, axis=0) - np.nanmin(positions, axis=0)
-    return tuple(sorted(int(i) for i in np.argsort(extent)[-2:]))
+    first, second = sorted(int(i) for i in np.argsort(extent)[-2:])
+    return first, second
 
 
 def plot_trajectory_top_view(
     path: str | os.PathLike,
-    est_positions,
-    gt_positions,
+    est_positions: npt.ArrayLike,
+    gt_positions: npt.ArrayLike | None,
     plane: str = "auto",
     title: str | None = None,
     dpi: int = 120,
@@ -71,7 +76,7 @@ def plot_trajectory_top_view(
     ax = fig.add_subplot()
     if has_gt:
         offsets = np.stack([est[:, [a, b]], gt[:, [a, b]]], axis=1)  # [N, 2 ends, 2 coords]
-        ax.add_collection(LineCollection(offsets, colors="0.75", linewidths=0.5, zorder=1))
+        ax.add_collection(LineCollection(list(offsets), colors="0.75", linewidths=0.5, zorder=1))
         ax.plot(gt[:, a], gt[:, b], color="black", linewidth=1.5, label="ground truth", zorder=2)
     label = "estimate (aligned)" if has_gt else "estimate"
     ax.plot(est[:, a], est[:, b], color="tab:blue", linewidth=1.2, label=label, zorder=3)
@@ -88,7 +93,7 @@ def plot_trajectory_top_view(
 
 def plot_errors_over_time(
     path: str | os.PathLike,
-    times,
+    times: npt.ArrayLike,
     series: dict[str, np.ndarray],
     xlabel: str = "time (s)",
     ylabel: str = "error",
@@ -197,8 +202,8 @@ def plot_landscape(path: str | os.PathLike, document: dict, title: str | None = 
     return _save(fig, path, dpi)
 
 
-def plot_cbknn_maps(path: str | os.PathLike, k_map, rho_map, cell: int, title: str | None = None,
-                    dpi: int = 120) -> Path:
+def plot_cbknn_maps(path: str | os.PathLike, k_map: npt.ArrayLike, rho_map: npt.ArrayLike, cell: int,
+                    title: str | None = None, dpi: int = 120) -> Path:
     """CB-KNN's adaptive kernel size K (left) and normalised density rho (right) per ``cell`` x ``cell`` px cell,
     each with its colour bar. ``k_map`` [cells_y, cells_x] int, ``rho_map`` the same shape (1 = mean of the
     non-empty cells, 0 = empty)."""

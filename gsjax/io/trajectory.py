@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gsjax.camera import quaternion_wxyz_to_rotation, rotation_to_quaternion_wxyz
 from gsjax.io.atomic import atomic_write_text
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 HEADER = "# timestamp tx ty tz qx qy qz qw (camera-to-world, metres)\n"
 
@@ -29,7 +33,8 @@ def read_tum_trajectory(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray
       quaternion or a timestamp that does not increase.
     """
     path = Path(path)
-    stamps, poses = [], []
+    stamps: list[float] = []
+    poses: list[np.ndarray] = []
     with open(path, encoding="utf-8") as f:
         for lineno, line in enumerate(f, start=1):
             text = line.strip()
@@ -63,7 +68,7 @@ def read_tum_trajectory(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray
     return np.asarray(stamps, np.float64).reshape(-1), np.asarray(poses, np.float64).reshape(-1, 4, 4)
 
 
-def format_tum_trajectory(timestamps, c2w) -> str:
+def format_tum_trajectory(timestamps: npt.ArrayLike, c2w: npt.ArrayLike) -> str:
     """The text of a TUM trajectory file (with a comment header). Numbers are written with the shortest repr that
     reads back to the same float64, so a write/read round trip is exact up to the quaternion conversion."""
     timestamps = np.asarray(timestamps, np.float64)
@@ -83,7 +88,7 @@ def format_tum_trajectory(timestamps, c2w) -> str:
     return "".join(lines)
 
 
-def write_tum_trajectory(path: str | os.PathLike, timestamps, c2w) -> Path:
+def write_tum_trajectory(path: str | os.PathLike, timestamps: npt.ArrayLike, c2w: npt.ArrayLike) -> Path:
     """Write camera-to-world poses [N, 4, 4] with timestamps [N] (s) as a TUM trajectory file, atomically.
     Non-finite poses are written as ``nan`` (read back as invalid poses)."""
     return atomic_write_text(path, format_tum_trajectory(timestamps, c2w))

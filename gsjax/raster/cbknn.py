@@ -129,7 +129,8 @@ class CBKNNStats(NamedTuple):
     fraction_fewer_than_k: jax.Array
 
 
-def motion_from_poses(w2c_prev2: jax.Array, w2c_prev1: jax.Array, tau_t, tau_r) -> jax.Array:
+def motion_from_poses(w2c_prev2: jax.Array, w2c_prev1: jax.Array, tau_t: float | jax.Array,
+                      tau_r: float | jax.Array) -> jax.Array:
     """Inter-frame motion gamma in [0, 1] between the two previous world-to-camera poses (D.4 #8).
 
     ``gamma = clip(max(|c_1 - c_2| / tau_t, angle(R_1 R_2^T) / tau_r), 0, 1)`` with camera centres c (m) and the
@@ -158,7 +159,7 @@ def density_map(projected: Projected, height: int, width: int, cell: int) -> jax
     return (counts / jnp.maximum(mean, 1e-12)).reshape(cells_y, cells_x)
 
 
-def kernel_size_map(rho: jax.Array, cbknn: CBKNN, motion) -> jax.Array:
+def kernel_size_map(rho: jax.Array, cbknn: CBKNN, motion: float | jax.Array) -> jax.Array:
     """K per cell [cells_y, cells_x] int32: ``clip(round(k0 max(0.5, 1 + beta gamma / (rho + eps))), k_min, k_max)``.
 
     ``round`` is round-half-to-even. The ratio is capped before rounding so empty cells (rho = 0) stay finite.

@@ -55,7 +55,8 @@ class Composite(NamedTuple):
     depth_sq: jax.Array
 
 
-def splat_table(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near, dilation=DILATION) -> Slots:
+def splat_table(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near: float | jax.Array,
+                dilation: float | jax.Array = DILATION) -> Slots:
     """Project every Gaussian (with gradients) -> :class:`Slots` with fields [N], one per Gaussian slot."""
     g = sanitized(gaussians)
     x, y, z = to_camera(g.means[:, 0], g.means[:, 1], g.means[:, 2], w2c)
@@ -68,8 +69,8 @@ def _slots(s: Splat, r, g, b, valid) -> Slots:
                  r=r, g=g, b=b, depth=s.depth, valid=valid)
 
 
-def splat_slots(gaussians: Gaussians, ids: jax.Array, w2c: jax.Array, intrinsics: Intrinsics, near,
-                dilation=DILATION) -> Slots:
+def splat_slots(gaussians: Gaussians, ids: jax.Array, w2c: jax.Array, intrinsics: Intrinsics,
+                near: float | jax.Array, dilation: float | jax.Array = DILATION) -> Slots:
     """:class:`Slots` [K, P] projected per slot from the raw parameters of the Gaussians ``ids`` [K, P] (-1 =
     empty), with gradients w.r.t. ``w2c`` only (the map is held fixed).
 

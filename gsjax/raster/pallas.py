@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import math
 import warnings
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -42,7 +43,7 @@ def on_gpu() -> bool:
 
 
 def _call(kernel, *, grid, in_specs, out_specs, out_shape, num_warps: int):
-    params = {}
+    params: dict[str, Any] = {}
     interpret = not on_gpu()
     if not interpret:
         from jax.experimental.pallas import triton as pltriton
@@ -105,7 +106,8 @@ def _walk_kernel(count_ref, u_ref, v_ref, a_ref, b_ref, c_ref, o_ref, px_ref, py
     jax.lax.fori_loop(0, k, pop, words)
 
 
-def walk_select(features, count, pixels, k: int):
+def walk_select(features: tuple[jax.Array, ...], count: jax.Array, pixels: jax.Array,
+                k: int) -> tuple[jax.Array, jax.Array, jax.Array]:
     """The selection walk of every tile and its first ``k`` contributors, one Pallas program per tile.
 
     Args:
@@ -217,7 +219,8 @@ def _composite_forward(alpha, r, g, b, z):
 
 
 @jax.custom_vjp
-def composite_slots(alpha, r, g, b, z):
+def composite_slots(alpha: jax.Array, r: jax.Array, g: jax.Array, b: jax.Array,
+                    z: jax.Array) -> tuple[jax.Array, ...]:
     """Front-to-back compositing of K slots per pixel, all inputs [K, P] float32 (slot-major, depth order).
 
     Returns ``(color_r, color_g, color_b, depth, silhouette, depth_sq, final_transmittance)``, each [P]:

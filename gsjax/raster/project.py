@@ -54,7 +54,8 @@ class Splat(NamedTuple):
     in_front: jax.Array
 
 
-def splat(x, y, z, log_scale, logit_opacity, intrinsics: Intrinsics, near, dilation=DILATION) -> Splat:
+def splat(x: jax.Array, y: jax.Array, z: jax.Array, log_scale: jax.Array, logit_opacity: jax.Array,
+          intrinsics: Intrinsics, near: float | jax.Array, dilation: float | jax.Array = DILATION) -> Splat:
     """EWA projection of isotropic Gaussians at camera-frame centres (x, y, z) (m), elementwise; ``dilation``
     (px^2) is added to the 2D covariance.
 
@@ -87,10 +88,11 @@ def splat(x, y, z, log_scale, logit_opacity, intrinsics: Intrinsics, near, dilat
     )
 
 
-def to_camera(x, y, z, w2c: jax.Array):
+def to_camera(x: jax.Array, y: jax.Array, z: jax.Array, w2c: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """World points given as coordinate arrays (m), elementwise -> camera-frame coordinate arrays."""
     r, t = w2c[:3, :3], w2c[:3, 3]
-    return tuple(r[i, 0] * x + r[i, 1] * y + r[i, 2] * z + t[i] for i in range(3))
+    x_c, y_c, z_c = (r[i, 0] * x + r[i, 1] * y + r[i, 2] * z + t[i] for i in range(3))
+    return x_c, y_c, z_c
 
 
 def sanitized(gaussians: Gaussians) -> Gaussians:
@@ -125,8 +127,8 @@ class Projected(NamedTuple):
     visible: jax.Array
 
 
-def project(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near: jax.Array,
-            dilation=DILATION) -> Projected:
+def project(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near: float | jax.Array,
+            dilation: float | jax.Array = DILATION) -> Projected:
     """Project Gaussians [N] with world-to-camera ``w2c`` [4, 4] into the image of ``intrinsics`` (values only:
     the differentiable path recomputes :func:`splat` per contributor slot)."""
     g = sanitized(jax.lax.stop_gradient(gaussians))
@@ -149,7 +151,8 @@ def straight_through_min(x: jax.Array, upper: float) -> jax.Array:
     return x - jax.lax.stop_gradient(x - jnp.minimum(x, upper))
 
 
-def gaussian_alpha(dx, dy, a, b, c, opacity) -> jax.Array:
+def gaussian_alpha(dx: jax.Array, dy: jax.Array, a: jax.Array, b: jax.Array, c: jax.Array,
+                   opacity: jax.Array) -> jax.Array:
     """Per-pixel alpha = min(0.99, o exp(-(a dx^2 + 2 b dx dy + c dy^2) / 2)), straight-through at the clamp.
 
     ``dx, dy`` are pixel minus centre (px); (a, b, c) the conic; all arguments broadcast elementwise.

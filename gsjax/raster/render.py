@@ -149,7 +149,9 @@ class Render(NamedTuple):
     stats: RenderStats
 
 
-def check_render_inputs(gaussians, w2c, intrinsics, settings, cbknn=None, motion=0.0) -> None:
+def check_render_inputs(gaussians: Gaussians, w2c: jax.typing.ArrayLike, intrinsics: Intrinsics,
+                        settings: RasterSettings, cbknn: cb.CBKNN | None = None,
+                        motion: float | jax.Array = 0.0) -> None:
     """Validate render's arguments; ValueError naming the argument.
 
     Shape and type checks always run; value checks (finiteness, rigidity, positivity) only when the values are
@@ -204,7 +206,7 @@ def render(
     intrinsics: Intrinsics,
     settings: RasterSettings = RasterSettings(),
     cbknn: cb.CBKNN | None = None,
-    motion=0.0,
+    motion: float | jax.Array = 0.0,
 ) -> Render:
     """Render a Gaussian map from a world-to-camera pose, optionally with CB-KNN smoothing.
 

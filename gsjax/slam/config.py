@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TypeVar
 
 import jax
 import numpy as np
@@ -23,8 +24,10 @@ SLAM_MAX_CONTRIBUTORS = 96
 TRACKING_OPTIMIZERS = ("adam", "lm")
 BEST_POSE = ("pre_step", "post_step")
 
+_T = TypeVar("_T")
 
-def static(default):
+
+def static(default: _T) -> _T:
     """A static (treedef, compile-time) dataclass field."""
     return dataclasses.field(default=default, metadata=dict(static=True))
 

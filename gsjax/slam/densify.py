@@ -82,7 +82,7 @@ def densify(
     return insert(gaussians, new)
 
 
-def prune(gaussians: Gaussians, config: MappingConfig, scene_radius) -> Gaussians:
+def prune(gaussians: Gaussians, config: MappingConfig, scene_radius: float | jax.Array) -> Gaussians:
     """Free the slots of Gaussians with opacity below ``prune_opacity`` or scale above
     ``prune_scale_ratio * scene_radius`` (method_spec A.9)."""
     remove = (gaussians.opacities < config.prune_opacity) | (

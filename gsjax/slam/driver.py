@@ -15,8 +15,8 @@ dropped; the result equals a run started with the larger capacity up to float32 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
-from typing import NamedTuple
+from collections.abc import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -27,6 +27,11 @@ from gsjax.data.frame import Frame, stack_frames, to_device, without_ground_trut
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import SlamState, grow_capacity, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs, run_chunk
+
+if TYPE_CHECKING:
+    from gsjax.data.sequence import Sequence as FrameSequence
+
+_Tree = TypeVar("_Tree")
 
 
 class Chunk(NamedTuple):
@@ -155,10 +160,10 @@ def batch_chunk_loop(
         t0 = time.perf_counter()
         host = [read_frame(i) for i in range(done, done + count)]
         frames, valid = pad_chunk(host, chunk)
-        chunk_poses = None
+        chunk_poses: jax.Array | None = None
         if poses is not None:
-            chunk_poses = np.asarray(poses[done:done + count], np.float32)
-            chunk_poses = jnp.asarray(np.concatenate([chunk_poses, np.repeat(chunk_poses[-1:], chunk - count, 0)]))
+            host_poses = np.asarray(poses[done:done + count], np.float32)
+            chunk_poses = jnp.asarray(np.concatenate([host_poses, np.repeat(host_poses[-1:], chunk - count, 0)]))
         read_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         launched = [_call(g._replace(state=s), frames, valid, intrinsics, chunk_poses) for g, s in zip(groups, states)]
@@ -219,12 +224,12 @@ def _frame_list(frames) -> list[Frame]:
 
 
 def run(
-    frames,
+    frames: Frame | Sequence[Frame] | FrameSequence,
     config: SlamConfig,
     intrinsics: Intrinsics,
     *,
     seed: int = 0,
-    poses=None,
+    poses: np.ndarray | None = None,
     chunk: int = 8,
     capacity: int | None = None,
 ) -> RunResult:
@@ -261,7 +266,7 @@ def run(
 # ------------------------------------------------------------------------------------------- batches
 
 
-def stack_trees(trees: list):
+def stack_trees(trees: list[_Tree]) -> _Tree:
     """Trees of one structure (configs with the same static fields, states of one shape) stacked on a new leading
     axis; raises ValueError when their static fields differ."""
     structure = jax.tree_util.tree_structure(trees[0])
@@ -271,11 +276,11 @@ def stack_trees(trees: list):
     return jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
 
 
-def unstack_tree(tree, index: int):
+def unstack_tree(tree: _Tree, index: int) -> _Tree:
     """Entry ``index`` of a batched tree."""
     return jax.tree_util.tree_map(lambda x: x[index], tree)
 
 
-def static_key(config: SlamConfig):
+def static_key(config: SlamConfig) -> jax.tree_util.PyTreeDef:
     """What decides a config's compiled program: its tree structure, which holds every static field."""
     return jax.tree_util.tree_structure(config)

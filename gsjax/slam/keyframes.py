@@ -23,7 +23,7 @@ class Window(NamedTuple):
     valid: jax.Array
 
 
-def sample_points(key, depth: jax.Array, w2c: jax.Array, intrinsics: Intrinsics, count: int) -> jax.Array:
+def sample_points(key: jax.Array, depth: jax.Array, w2c: jax.Array, intrinsics: Intrinsics, count: int) -> jax.Array:
     """World points [count, 3] back-projected from ``count`` pixels drawn uniformly, with replacement, among the
     pixels with valid depth (the origin when there is none)."""
     valid = (depth > 0).reshape(-1)
@@ -35,7 +35,7 @@ def sample_points(key, depth: jax.Array, w2c: jax.Array, intrinsics: Intrinsics,
     return points @ c2w[:3, :3].T + c2w[:3, 3]
 
 
-def smooth_points(key, points: jax.Array, config: CBKNNConfig) -> jax.Array:
+def smooth_points(key: jax.Array, points: jax.Array, config: CBKNNConfig) -> jax.Array:
     """The released code's 3D KNN smoothing of the overlap samples (method_spec C.1), with static shapes.
 
     Density from the ``smoothing_base_k`` nearest neighbours (self included); K per point grows linearly with the
@@ -62,7 +62,8 @@ def smooth_points(key, points: jax.Array, config: CBKNNConfig) -> jax.Array:
     return jnp.where((subset > 1)[:, None], mean, points)
 
 
-def overlap_fractions(points: jax.Array, keyframes: KeyframeBuffer, intrinsics: Intrinsics, margin) -> jax.Array:
+def overlap_fractions(points: jax.Array, keyframes: KeyframeBuffer, intrinsics: Intrinsics,
+                      margin: float | jax.Array) -> jax.Array:
     """[F] fraction of the world points that project inside each keyframe (``margin`` px from the border, z > 0)."""
     cam = jnp.einsum("fij,nj->fni", keyframes.w2c[:, :3, :3], points) + keyframes.w2c[:, None, :3, 3]
     z = cam[..., 2]
@@ -73,7 +74,7 @@ def overlap_fractions(points: jax.Array, keyframes: KeyframeBuffer, intrinsics: 
 
 
 def select_window(
-    key,
+    key: jax.Array,
     keyframes: KeyframeBuffer,
     depth: jax.Array,
     w2c: jax.Array,

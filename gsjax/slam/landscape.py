@@ -10,6 +10,7 @@ ordered (rho, phi): ``tx ty tz`` translate the camera by ``offset`` cm along its
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import NamedTuple
 
 import jax
@@ -83,7 +84,7 @@ def landscape(problem: TrackingProblem, config: SlamConfig, directions: jax.Arra
     return jax.vmap(axis)(directions, offsets)
 
 
-def basin_width(offsets, converged) -> float:
+def basin_width(offsets: Iterable[float], converged: Iterable[bool]) -> float:
     """The largest |offset| r such that the tracker converged from every grid offset with |offset| <= r (0 when
     it fails from the grid point nearest the reference)."""
     width = 0.0

@@ -9,7 +9,7 @@ from gsjax.eval.image import ssim_splatam
 from gsjax.slam.views import RenderedView
 
 
-def tracking_mask(view: RenderedView, depth_gt: jax.Array, sil_threshold) -> jax.Array:
+def tracking_mask(view: RenderedView, depth_gt: jax.Array, sil_threshold: float | jax.Array) -> jax.Array:
     """[H, W] bool: valid observed depth, finite rendered depth and variance, silhouette above the threshold."""
     variance = view.depth_sq - view.depth * view.depth
     return (depth_gt > 0) & jnp.isfinite(view.depth) & jnp.isfinite(variance) & (view.silhouette > sil_threshold)
@@ -24,7 +24,8 @@ def rendered_depth(view: RenderedView, normalized: bool) -> jax.Array:
 
 
 def tracking_loss(
-    view: RenderedView, color_gt, depth_gt, lambda_color, lambda_depth, sil_threshold, normalized_depth: bool = False
+    view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
+    lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False
 ) -> jax.Array:
     """SplaTAM's tracking loss: lambda_depth sum_M |D - D_gt| + lambda_color sum_M |C - C_gt| (sums, not means)."""
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
@@ -35,7 +36,8 @@ def tracking_loss(
 
 
 def tracking_residuals(
-    view: RenderedView, color_gt, depth_gt, lambda_color, lambda_depth, sil_threshold, normalized_depth: bool = False
+    view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
+    lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False
 ) -> jax.Array:
     """The same masked terms as a residual vector [H*W*4] for least squares (Gauss-Newton / LM)."""
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
@@ -45,7 +47,8 @@ def tracking_residuals(
     return jnp.concatenate([depth.reshape(-1), color.reshape(-1)])
 
 
-def mapping_loss(view: RenderedView, color_gt, depth_gt, lambda_color, lambda_depth, ssim_weight) -> jax.Array:
+def mapping_loss(view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
+                 lambda_depth: float | jax.Array, ssim_weight: float | jax.Array) -> jax.Array:
     """SplaTAM's mapping loss: lambda_depth mean_{D_gt>0} |D - D_gt| + lambda_color ((1 - w) mean |C - C_gt| +
     w (1 - SSIM(C, C_gt))), colour over all pixels, SSIM zero-padded as in SplaTAM's training code."""
     valid = depth_gt > 0

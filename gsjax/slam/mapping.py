@@ -32,7 +32,8 @@ class WindowFrames(NamedTuple):
 
 
 def gather_window_frames(
-    window: Window, keyframes: KeyframeBuffer, color, depth, w2c, gamma, current_is_keyframe
+    window: Window, keyframes: KeyframeBuffer, color: jax.Array, depth: jax.Array, w2c: jax.Array,
+    gamma: jax.Array, current_is_keyframe: jax.Array
 ) -> WindowFrames:
     """Gather the window's views from the keyframe buffer and the current frame."""
     current = window.index == CURRENT
@@ -64,13 +65,13 @@ class MapResult(NamedTuple):
 
 
 def map_window(
-    key,
+    key: jax.Array,
     gaussians: Gaussians,
     views: WindowFrames,
     intrinsics: Intrinsics,
     config: SlamConfig,
-    scene_radius,
-    first_map=False,
+    scene_radius: float | jax.Array,
+    first_map: bool | jax.Array = False,
 ) -> MapResult:
     """``config.mapping.strided_iters`` iterations on every other pixel (the four strided grids in turn, see
     :func:`gsjax.slam.views.strided_setup`), then ``config.mapping.iters`` on every pixel, each on one view drawn

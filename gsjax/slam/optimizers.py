@@ -3,22 +3,26 @@ parameter group (``optax.multi_transform``), skipped and counted non-finite step
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import jax
 import jax.numpy as jnp
 import optax
 
 from gsjax.slam.config import SlamConfig
 
+_Grads = TypeVar("_Grads")
+
 MAP_PARAMS = ("means", "rgb", "logit_opacities", "log_scales")  # the Gaussians' fields mapping optimises
 
 
-def finite_only_if_loss_is(loss, grads):
+def finite_only_if_loss_is(loss: jax.Array, grads: _Grads) -> _Grads:
     """``grads`` unchanged where ``loss`` is finite, else NaN everywhere: a step whose loss is not finite is skipped
     like one whose gradient is not (``apply_if_finite`` looks at the gradient only)."""
     return jax.tree.map(lambda g: jnp.where(jnp.isfinite(loss), g, jnp.nan), grads)
 
 
-def nonfinite_steps(opt_state) -> jax.Array:
+def nonfinite_steps(opt_state: optax.OptState) -> jax.Array:
     """[] int32 steps that ``apply_if_finite`` skipped so far."""
     return optax.tree_utils.tree_get(opt_state, "total_notfinite")
 
@@ -38,7 +42,7 @@ def pose_optimizer(config: SlamConfig) -> optax.GradientTransformation:
     return optax.apply_if_finite(groups, max_consecutive_errors=total)  # never gives up within a frame
 
 
-def map_optimizer(config: SlamConfig, lr_means) -> optax.GradientTransformation:
+def map_optimizer(config: SlamConfig, lr_means: float | jax.Array) -> optax.GradientTransformation:
     """SplaTAM's per-frame Adam (eps 1e-15) on the map parameters ``{name: array}`` with a step size per group
     (``lr_means`` for the means, traced; ``mapping.lr_rgb``, ``lr_opacity``, ``lr_scale``); an update whose gradient
     is not finite is skipped and counted (``total_notfinite``); with ``skip_step_at_prune`` the iterations in

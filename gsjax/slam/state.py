@@ -69,15 +69,16 @@ class KeyframeBuffer:
             count=jnp.int32(0),
         )
 
-    def color_at(self, slot) -> jax.Array:
+    def color_at(self, slot: int | jax.Array) -> jax.Array:
         """Colour [..., H, W, 3] float32 in [0, 1] of keyframe ``slot`` (an int or an int array)."""
         return decode_color(self.color[slot])
 
-    def depth_at(self, slot) -> jax.Array:
+    def depth_at(self, slot: int | jax.Array) -> jax.Array:
         """Depth [..., H, W] float32 m (0 = invalid) of keyframe ``slot``."""
         return decode_depth(self.depth[slot])
 
-    def push(self, color, depth, w2c, frame, gamma, enabled) -> "KeyframeBuffer":
+    def push(self, color: jax.Array, depth: jax.Array, w2c: jax.Array, frame: int | jax.Array,
+             gamma: float | jax.Array, enabled: jax.Array) -> "KeyframeBuffer":
         """Append a keyframe (colour [H, W, 3] in [0, 1], depth [H, W] m) when ``enabled`` (a traced bool); a full
         buffer keeps its content (the shell sizes it for the whole sequence, so this does not happen in a run).
         One slot is written (an in-place update of the scan's carry), never the whole buffer."""

@@ -218,7 +218,7 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
 
 @jax.jit
 def run_chunk(state: SlamState, frames: Frame, valid: jax.Array, config: SlamConfig, intrinsics: Intrinsics,
-              poses: jax.Array | None = None):
+              poses: jax.Array | None = None) -> tuple[SlamState, StepOutputs]:
     """``lax.scan`` of :func:`step` over a chunk of frames stacked along a leading axis -> (state, outputs).
 
     ``valid`` [C] bool marks real frames; padding frames (a short last chunk padded to the chunk size, so it

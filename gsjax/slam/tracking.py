@@ -69,7 +69,7 @@ class TrackingObjective(NamedTuple):
 
     view_at: Callable
     loss: Callable
-    lambda_color: jax.Array
+    lambda_color: float | jax.Array
 
 
 def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> TrackingObjective:
@@ -108,7 +108,9 @@ def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
                        None if strided is None else lambda delta, phase: strided(phase)[0].loss(delta))
 
 
-def strided_problem(problem: TrackingProblem, config: SlamConfig):
+def strided_problem(
+    problem: TrackingProblem, config: SlamConfig
+) -> Callable[[int | jax.Array], tuple[TrackingObjective, jax.Array, jax.Array]]:
     """``on_grid(phase)`` -> (the :class:`TrackingObjective` on every other pixel, (row, col) = (phase // 2,
     phase % 2), with its loss scaled by the pixel ratio so its gradient has the full loss's scale; that colour
     [H // 2, W // 2, 3]; that depth). The render there is the full render's pixels (:func:`strided_setup`)."""
@@ -227,7 +229,7 @@ def _diverged(result: TrackResult, w2c_init, previous_loss, config: SlamConfig) 
     return jnp.isfinite(result.loss) & (jump | ~within_step_bound(result.w2c, w2c_init, config))
 
 
-def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss) -> GuardedTrack:
+def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: jax.Array) -> GuardedTrack:
     """:func:`track` from the constant-velocity prediction ``problem.w2c_init``, guarded against divergence.
 
     ``previous_loss`` []: the previous tracked frame's loss (0: none, no loss-jump test). Both attempts are passes

@@ -34,7 +34,8 @@ def _view(out) -> RenderedView:
 
 
 def render_view(
-    gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, config: SlamConfig, smooth, gamma
+    gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, config: SlamConfig, smooth: bool | jax.Array,
+    gamma: float | jax.Array
 ) -> RenderedView:
     """Render ``gaussians`` at ``w2c``; with CB-KNN's per-pixel smoothing where ``smooth`` (a traced bool) is true.
 
@@ -60,7 +61,7 @@ def strided_setup(config: SlamConfig, intrinsics: Intrinsics) -> SlamConfig:
     return at_width(dataclasses.replace(config, raster=raster), intrinsics.width // 2, intrinsics.width)
 
 
-def strided_observation(image: jax.Array, row, col) -> jax.Array:
+def strided_observation(image: jax.Array, row: int | jax.Array, col: int | jax.Array) -> jax.Array:
     """Every other pixel of ``image`` [H, W, ...] from (``row``, ``col``) (0 or 1, may be traced): [H // 2, W // 2,
     ...], the pixels of :meth:`Intrinsics.strided`."""
     h, w = image.shape[0] // 2, image.shape[1] // 2
@@ -68,14 +69,15 @@ def strided_observation(image: jax.Array, row, col) -> jax.Array:
     return jnp.take(jnp.take(blocks, row, axis=1), col, axis=2)
 
 
-def strided_frame(color: jax.Array, depth: jax.Array, intrinsics: Intrinsics, phase):
+def strided_frame(color: jax.Array, depth: jax.Array, intrinsics: Intrinsics,
+                  phase: int | jax.Array) -> tuple[jax.Array, jax.Array, Intrinsics]:
     """(colour [H // 2, W // 2, 3], depth [H // 2, W // 2], their intrinsics) of strided grid ``phase`` (0-3, may be
     traced): every other pixel from (row, col) = (phase // 2, phase % 2)."""
     row, col = phase // 2, phase % 2
     return strided_observation(color, row, col), strided_observation(depth, row, col), intrinsics.strided(row, col)
 
 
-def is_keyframe(frame, num_frames, every: int):
+def is_keyframe(frame: jax.Array, num_frames: int | jax.Array, every: int) -> jax.Array:
     """SplaTAM's keyframe rule (A.10): frame 0, every ``every``-th frame ((t+1) % every == 0), the second-to-last."""
     return (frame == 0) | ((frame + 1) % every == 0) | (frame == num_frames - 2)
 
