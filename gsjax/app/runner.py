@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.app.progress import Progress
-from gsjax.app.run_dir import check_run_dir, clear_previous_run
+from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.run_outputs import OutputOptions, run_record, write_outputs
 from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
@@ -141,18 +141,28 @@ def run_slam(
     ``input_warnings``: what opening the sequence warned about, listed first in ``metrics.json``'s ``warnings``.
 
     Raises :class:`gsjax.app.run_dir.RunDirError` before writing anything when ``options.out`` holds a previous run
-    and neither ``resume`` nor ``overwrite`` is set, or cannot be used at all (:func:`check_run_dir`).
+    and neither ``resume`` nor ``overwrite`` is set, cannot be used at all (:func:`check_run_dir`), or is held by
+    another live run (:func:`gsjax.app.run_dir.locked_run_dir`).
     """
+    out = Path(options.out)
+    check_run_dir(out, resume=options.resume, overwrite=options.overwrite)
+    if len(sequence) < 1:
+        raise ValueError(f"sequence {sequence.name!r} has no frames")
+    sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
+    with locked_run_dir(out):
+        return _run_locked(sequence, config, options, describe, on_chunk, observe, input_warnings)
+
+
+def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, describe: dict | None,
+                on_chunk: Callable[[int], None] | None, observe: Callable[[SlamState, dict], None] | None,
+                input_warnings: tuple[str, ...]) -> RunMetrics:
+    """:func:`run_slam` once ``options.out`` is checked and this process holds its lock."""
     from gsjax.app.checkpoints import Checkpoints, RunLedger
 
     out = Path(options.out)
-    check_run_dir(out, resume=options.resume, overwrite=options.overwrite)
     intrinsics = sequence.intrinsics
     height, width = intrinsics.height, intrinsics.width
     total = len(sequence)
-    if total < 1:
-        raise ValueError(f"sequence {sequence.name!r} has no frames")
-    sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
     if options.overwrite:
         removed = clear_previous_run(out)
         if removed:

@@ -1,11 +1,17 @@
 """The output-directory rules: a new or empty directory is used, a previous run only with --resume or
---overwrite, anything else never; the checks write nothing and --overwrite removes gsjax's own outputs only."""
+--overwrite, anything else never; the checks write nothing and --overwrite removes gsjax's own outputs only; a
+directory a live run holds is refused, and the lock of a killed run blocks nothing."""
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
+
 import pytest
 
-from gsjax.app.run_dir import RUN_OUTPUTS, RunDirError, check_run_dir, clear_previous_run
+from gsjax.app.cli import main
+from gsjax.app.run_dir import LOCK, RUN_OUTPUTS, RunDirError, check_run_dir, clear_previous_run, holder, locked_run_dir
 
 
 def previous_run(out):
@@ -55,3 +61,57 @@ def test_overwrite_removes_only_gsjax_outputs(tmp_path):
     assert clear_previous_run(out) == ["config.json", "checkpoints", "renders"]
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
     assert "notes.txt" not in RUN_OUTPUTS
+
+
+# ------------------------------------------------------------------------------ one process per directory
+
+HOLD = ("import sys\nfrom gsjax.app.run_dir import locked_run_dir\nwith locked_run_dir(sys.argv[1]):\n"
+        "    print('held', flush=True)\n    sys.stdin.readline()\n")
+
+
+def holding_process(out):
+    """Another process that holds ``out``'s lock until its stdin closes (or it is killed)."""
+    process = subprocess.Popen([sys.executable, "-c", HOLD, str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                               text=True)
+    assert process.stdout.readline().strip() == "held"
+    return process
+
+
+def snapshot(out):
+    return {p.relative_to(out): (p.stat().st_mtime_ns, p.read_bytes() if p.is_file() else None)
+            for p in sorted(out.rglob("*"))}
+
+
+@pytest.mark.parametrize("flag", ["--resume", "--overwrite"])
+def test_a_run_into_a_directory_a_live_run_holds_is_refused_touching_nothing(tmp_path, capsys, flag):
+    out = previous_run(tmp_path / "run")
+    process = holding_process(out)
+    try:
+        before = snapshot(out)
+        assert holder(out) == process.pid
+        status = main(["run", "--dataset", "synthetic", "--max-frames", "2", "--out", str(out), flag])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert status == 2 and len(err) == 1, err
+        assert f"is in use by a running gsjax (process {process.pid}); nothing was changed" in err[0]
+        assert snapshot(out) == before
+        with pytest.raises(RunDirError, match="in use"), locked_run_dir(out):
+            pass
+    finally:
+        process.stdin.close()
+        process.wait(30)
+    assert holder(out) is None  # released when the holder ends
+
+
+def test_a_lock_left_by_a_killed_run_blocks_nothing(tmp_path):
+    out = previous_run(tmp_path / "run")
+    process = holding_process(out)
+    process.send_signal(signal.SIGKILL)
+    process.wait(30)
+    assert (out / LOCK).is_file() and holder(out) is None
+    check_run_dir(out, resume=True)
+    with locked_run_dir(out):
+        assert holder(out) is not None  # this process's own lock, as another process would see it
+    check_run_dir(tmp_path / "fresh")
+    with locked_run_dir(tmp_path / "fresh"):
+        pass
+    check_run_dir(tmp_path / "fresh")  # the lock file alone is no previous run and not "other things"

@@ -4,12 +4,14 @@ a resumed run equals the uninterrupted one bit for bit, and resuming with other 
 from __future__ import annotations
 
 import json
+import os
 import shutil
 
 import numpy as np
 import pytest
 
 from gsjax.app.checkpoints import Checkpoints
+from gsjax.app.run_dir import holder
 from gsjax.app.runner import run_slam
 from gsjax.config_text import apply_overrides
 from gsjax.eval.run_metrics import read_run_metrics
@@ -160,3 +162,11 @@ def _checkpoint_ledger(out):
         return checkpoints.read_ledger(checkpoints.latest())
     finally:
         checkpoints.close()
+
+
+def test_a_run_holds_its_directory_while_it_runs_and_lets_go_after(tmp_path):
+    out = tmp_path / "run"
+    seen = []
+    run_slam(tiny_sequence(), tiny_config(), run_options(out), on_chunk=lambda done: seen.append(holder(out)))
+    assert seen == [os.getpid()] * (FRAMES // CHUNK)
+    assert holder(out) is None
