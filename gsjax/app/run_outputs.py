@@ -124,7 +124,8 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
         config=record["config"],
         world_from_map=np.asarray(anchor, np.float64).tolist(),
         keyframe_frames=[int(t) for t in np.flatnonzero(outputs["keyframe"])],
-        per_frame={name: [_json_number(v) for v in outputs[name]] for name in PER_FRAME},
+        # (a run resumed from a checkpoint of an older gsjax may lack a series)
+        per_frame={name: [_json_number(v) for v in outputs[name]] for name in PER_FRAME if name in outputs},
     )
     from gsjax.report import write_report
 
@@ -136,7 +137,8 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
 
 
 # The per-frame outputs metrics.json keeps (the flags are listed as frame numbers: skipped_frames, ...).
-PER_FRAME = ("tracking_loss", "mapping_loss", "num_gaussians", "added", "dropped", "gamma", "tracking_iters")
+PER_FRAME = ("tracking_loss", "mapping_loss", "num_gaussians", "added", "dropped", "gamma", "tracking_iters",
+             "depth_valid")
 
 
 def _json_number(value):

@@ -226,6 +226,30 @@ def ground_truth_on_estimate(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike,
     return frames, est[first] @ invert_rigid(gt[first]) @ gt[frames]
 
 
+class Drift(NamedTuple):
+    """The camera error without alignment, per frame with ground truth: ``frames`` [n] (estimate rows),
+    ``error_m`` [n] distance between camera centres (m), ``error_deg`` [n] angle between orientations (deg), after
+    the ground truth is started at the estimate's first pose (:func:`ground_truth_on_estimate`)."""
+
+    frames: np.ndarray
+    error_m: np.ndarray
+    error_deg: np.ndarray
+
+
+def drift(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike, valid: npt.ArrayLike | None = None) -> Drift | None:
+    """How far the estimate has drifted from the ground truth at each frame, where the error enters frame by frame
+    (the ATE's alignment spreads it over the whole run); None without a frame to compare. Arguments as
+    :func:`ate_rmse_c2w`."""
+    on_estimate = ground_truth_on_estimate(est_c2w, gt_c2w, valid)
+    if on_estimate is None:
+        return None
+    frames, gt = on_estimate
+    est = _as_poses(est_c2w, "est_c2w")[frames]
+    error_m = np.linalg.norm(est[:, :3, 3] - gt[:, :3, 3], axis=1)
+    error_deg = np.degrees(rotation_angle_rad(np.swapaxes(est[:, :3, :3], 1, 2) @ gt[:, :3, :3]))
+    return Drift(frames, error_m, error_deg)
+
+
 def ate_splatam_mean_w2c(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike,
                          valid: npt.ArrayLike | None = None) -> AteResult:
     """SplaTAM's "ATE RMSE" (method_spec B.1): the MEAN distance (m) between w2c translation columns after rigid

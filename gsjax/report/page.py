@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.eval.run_metrics import RunMetrics
+from gsjax.eval.trajectory import drift
 from gsjax.report.figures import Series, series_png
 from gsjax.report.run_record import RunRecord
 
@@ -193,6 +194,38 @@ def _errors_section(runs: list[RunRecord]) -> str:
                    "previous frame (RPE).")
 
 
+def _drift_section(runs: list[RunRecord]) -> str:
+    """Where the error enters: the unaligned camera error per frame and its change, beside what could cause it."""
+    error, change, loss, depth, motion = [], [], [], [], []
+    for run in runs:
+        aligned = run.ground_truth_in_map()
+        found = None if aligned is None else drift(run.map_c2w()[aligned[0]], aligned[1])
+        if found is None:
+            continue
+        rows = aligned[0]
+        frames = rows[found.frames]
+        error.append(Series(run.name, frames, 100 * found.error_m))
+        change.append(Series(run.name, frames[1:], 100 * np.diff(found.error_m)))
+        steps = np.linalg.norm(np.diff(run.est_c2w[:, :3, 3], axis=0), axis=1)
+        motion.append(Series(run.name, np.arange(1, len(run.est_c2w)), 100 * steps))
+        per_frame = run.metrics.per_frame
+        if per_frame.get("tracking_loss"):
+            loss.append(Series(run.name, np.arange(len(per_frame["tracking_loss"])),
+                               np.asarray([np.nan if v is None else v for v in per_frame["tracking_loss"]], float)))
+        if per_frame.get("depth_valid"):
+            depth.append(Series(run.name, np.arange(len(per_frame["depth_valid"])),
+                                100 * np.asarray(per_frame["depth_valid"], float)))
+    if not error:
+        return _note("No ground truth to compare with.")
+    panels = [("camera error, unaligned (cm)", error), ("its change per frame (cm)", change),
+              ("tracking loss", loss), ("valid depth (% of pixels)", depth), ("camera motion per frame (cm)", motion)]
+    return _figure(series_png([p for p in panels if p[1]]), "camera error over time, unaligned",
+                   "The ground truth started at the first estimated pose, then the distance between the camera "
+                   "centres per frame (no alignment, so the error shows where it enters, unlike the ATE), its change "
+                   "from the previous frame, and beside them the tracking loss, the valid depth and the camera's "
+                   "motion.")
+
+
 def _renders_section(runs: list[RunRecord]) -> str:
     def caption(run: RunRecord, frame: int) -> str:
         values = run.metrics.render.at(frame)
@@ -339,6 +372,7 @@ def report_html(runs: list[RunRecord]) -> str:
         ("metrics", "Metrics", _metrics_section(runs)),
         ("trajectory", "Trajectory against ground truth", _trajectory_section(runs)),
         ("errors", "ATE and RPE over time", _errors_section(runs)),
+        ("drift", "Camera error over time, unaligned", _drift_section(runs)),
         ("renders", "Renders against inputs", _renders_section(runs)),
         ("psnr", "PSNR per frame", _psnr_section(runs)),
         ("map", "Gaussians and tracking loss over time", _map_section(runs)),

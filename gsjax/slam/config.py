@@ -144,6 +144,9 @@ class MappingConfig:
       prune_opacity: prune Gaussians with opacity below this; ``prune_scale_ratio``: or with scale above this
         fraction of the scene radius.
       prune_iters: the mapping iterations at which pruning runs (counted from the first, strided or not).
+      clamp_rgb: (traced bool) project the colours back into [0, 1] after every mapping step. SplaTAM leaves them
+        unbounded (False: its behaviour): with Adam's eps 1e-15 a Gaussian with a near-zero colour gradient takes
+        full-size steps and can leave [0, 1] far, and renders then depend on whether it is in view.
       skip_step_at_prune: reproduce SplaTAM's quirk of skipping the Adam step at pruning iterations.
       overlap_samples: depth pixels sampled to measure keyframe overlap; ``overlap_margin``: border (px) a
         projected sample must clear to count as inside a keyframe.
@@ -164,6 +167,7 @@ class MappingConfig:
     prune_scale_ratio: float = 0.1
     prune_iters: tuple = static((0, 20))
     skip_step_at_prune: bool = static(False)
+    clamp_rgb: bool = False
     overlap_samples: int = static(1600)
     overlap_margin: float = 20.0
 

@@ -113,7 +113,9 @@ def map_window(
                                  active), cfg, scene_radius).active
         active = jnp.where(at_prune, pruned, active)
         updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grads), opt_state)
-        return (optax.apply_updates(params, updates), active, opt_state), loss
+        params = optax.apply_updates(params, updates)
+        params["rgb"] = jnp.where(cfg.clamp_rgb, jnp.clip(params["rgb"], 0.0, 1.0), params["rgb"])
+        return (params, active, opt_state), loss
 
     carry = (params, gaussians.active, optimizer.init(params))
     steps = jnp.arange(total, dtype=jnp.int32)

@@ -4,8 +4,13 @@
 A preset owns its resolution. Its pixel-sized settings (``mapping.overlap_margin``, and ``cbknn.params.alpha`` in
 the "unit" shift mode, where it is px) are given for the image width in :data:`PRESET_WIDTH`;
 ``preset(name, width=w)`` scales them to ``w`` px, so the same preset means the same physical margins and shifts at
-any resolution. The ``cpu`` preset also works at about that width (``gsjax run`` reduces its
-input to ~80 px across, :func:`working_downscale`); the paper presets work at the input's own resolution.
+any resolution. The pruning bound on a Gaussian's size (``mapping.prune_scale_ratio``, a fraction of the scene
+radius) follows the pixel footprint instead: a fresh Gaussian is one pixel wide (scale = depth / focal length), so
+at half the width it is twice as large, and the bound doubles with it; otherwise a low-resolution map prunes its
+own new Gaussians and thins out. The other thresholds are unitless (opacity, silhouette, depth error over its
+median) or physical on purpose (step bounds in metres and degrees). The ``cpu`` preset also works at about
+that width (``gsjax run`` reduces its input to ~80 px across, :func:`working_downscale`); the paper presets work
+at the input's own resolution.
 """
 
 from __future__ import annotations
@@ -36,7 +41,8 @@ def _check_name(name: str) -> None:
 
 def at_width(config: SlamConfig, width: int, preset_width: int) -> SlamConfig:
     """``config`` with its pixel-sized settings (``mapping.overlap_margin``; ``cbknn.params.alpha`` when it is px)
-    scaled from ``preset_width`` to ``width`` px; the very same config when the two agree."""
+    scaled from ``preset_width`` to ``width`` px, and ``mapping.prune_scale_ratio`` by the pixel footprint
+    (``preset_width / width``); the very same config when the two agree."""
     if width == preset_width:
         return config
     scale = width / preset_width
@@ -45,7 +51,8 @@ def at_width(config: SlamConfig, width: int, preset_width: int) -> SlamConfig:
         params = dataclasses.replace(params, alpha=params.alpha * scale)
     return dataclasses.replace(
         config,
-        mapping=dataclasses.replace(config.mapping, overlap_margin=config.mapping.overlap_margin * scale),
+        mapping=dataclasses.replace(config.mapping, overlap_margin=config.mapping.overlap_margin * scale,
+                                    prune_scale_ratio=config.mapping.prune_scale_ratio / scale),
         cbknn=dataclasses.replace(config.cbknn, params=params),
     )
 

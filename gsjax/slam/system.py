@@ -49,7 +49,8 @@ class StepOutputs(NamedTuple):
       and kept its predicted pose; retried, diverged: [] bool, tracking diverged and the frame was tracked again
       / fell back to the constant-velocity prediction (:func:`gsjax.slam.tracking.track_guarded`);
       nonfinite_gaussians: [] Gaussians freed this frame because a parameter was not finite;
-      tracking_iters: [] int32 tracking iterations run (both attempts of a retried frame; 0 when not tracked).
+      tracking_iters: [] int32 tracking iterations run (both attempts of a retried frame; 0 when not tracked);
+      depth_valid: [] the fraction of the frame's pixels with valid depth.
     """
 
     w2c: jax.Array
@@ -68,6 +69,7 @@ class StepOutputs(NamedTuple):
     diverged: jax.Array
     nonfinite_gaussians: jax.Array
     tracking_iters: jax.Array
+    depth_valid: jax.Array
 
 
 def sanitize_frame(frame: Frame) -> Frame:
@@ -115,10 +117,10 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
     frame = sanitize_frame(frame)
     usable = jnp.mean(frame.depth > 0) >= config.min_valid_depth
     return jax.lax.cond(usable, lambda s: _process(s, frame, config, intrinsics, pose),
-                        lambda s: _coast(s, config, pose), state)
+                        lambda s: _coast(s, frame, config, pose), state)
 
 
-def _coast(state: SlamState, config: SlamConfig, pose) -> tuple[SlamState, StepOutputs]:
+def _coast(state: SlamState, frame: Frame, config: SlamConfig, pose) -> tuple[SlamState, StepOutputs]:
     """A frame without usable depth: the predicted (or known) pose, the map and keyframes untouched."""
     w2c = orthonormalize(_predicted_pose(state) if pose is None else pose)
     zero = jnp.float32(0.0)
@@ -127,7 +129,7 @@ def _coast(state: SlamState, config: SlamConfig, pose) -> tuple[SlamState, StepO
                           gamma=jnp.asarray(_motion(state, config), jnp.float32), nonfinite=jnp.int32(0),
                           truncated=jnp.bool_(False), truncation_residual=zero, skipped=jnp.bool_(True),
                           retried=jnp.bool_(False), diverged=jnp.bool_(False), nonfinite_gaussians=jnp.int32(0),
-                          tracking_iters=jnp.int32(0))
+                          tracking_iters=jnp.int32(0), depth_valid=jnp.mean(frame.depth > 0))
     new_state = dataclasses.replace(state, w2c_prev1=w2c, w2c_prev2=state.w2c_prev1,
                                     key=jax.random.split(state.key, 3)[2], frame=state.frame + 1)
     return new_state, outputs
@@ -212,6 +214,7 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         diverged=tracked.diverged,
         nonfinite_gaussians=freed,
         tracking_iters=tracked.iterations,
+        depth_valid=jnp.mean(frame.depth > 0),
     )
     return new_state, outputs
 

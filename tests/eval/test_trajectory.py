@@ -17,6 +17,7 @@ from gsjax.eval.trajectory import (
     Alignment,
     ate_rmse_c2w,
     ate_splatam_mean_w2c,
+    drift,
     evaluate_trajectory,
     ground_truth_on_estimate,
     rpe,
@@ -378,3 +379,24 @@ def test_ground_truth_on_estimate_starts_at_the_estimates_pose_and_keeps_the_rel
     relative = lambda poses: invert_rigid(poses[0]) @ poses  # noqa: E731
     np.testing.assert_allclose(relative(drawn), relative(gt[2:]), atol=1e-9)
     assert ground_truth_on_estimate(est, gt, np.zeros(30, bool)) is None
+
+
+def test_drift_is_the_error_where_it_enters_in_any_world_frame():
+    rng = np.random.default_rng(16)
+    gt = smooth_trajectory(rng, 40)
+    moved = Alignment(random_rotation(rng), rng.standard_normal(3)).apply_c2w(gt)  # another world frame
+    found = drift(moved, gt)
+    assert found.frames.tolist() == list(range(40))
+    np.testing.assert_allclose(found.error_m, 0, atol=1e-9)
+    np.testing.assert_allclose(found.error_deg, 0, atol=1e-5)
+    # From frame 20 on, the estimate slips 1 cm per frame along its own x axis and turns 0.5 deg about its z axis:
+    # the unaligned error is exactly that, frame by frame (an ATE would spread it over the run).
+    slipped = moved.copy()
+    for t in range(20, 40):
+        slip = pose(axis_rotation([0, 0, 1], np.radians(0.5 * (t - 19))), (0.01 * (t - 19), 0.0, 0.0))
+        slipped[t] = moved[t] @ slip
+    found = drift(slipped, gt)
+    expected = np.maximum(np.arange(40) - 19, 0)
+    np.testing.assert_allclose(found.error_m, 0.01 * expected, atol=1e-9)
+    np.testing.assert_allclose(found.error_deg, 0.5 * expected, atol=1e-5)
+    assert drift(moved, gt, np.zeros(40, bool)) is None

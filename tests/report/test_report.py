@@ -24,7 +24,8 @@ from gsjax.report import read_run, write_report
 from gsjax.report.page import HEADER
 from tests.support.tiny_slam import FRAMES, run_options, tiny_config, tiny_sequence
 
-SECTIONS = ("metrics", "trajectory", "errors", "renders", "psnr", "map", "timings", "cbknn", "warnings", "config")
+SECTIONS = ("metrics", "trajectory", "errors", "drift", "renders", "psnr", "map", "timings", "cbknn", "warnings",
+            "config")
 
 
 @pytest.fixture(scope="module")
@@ -58,8 +59,8 @@ def test_every_run_writes_a_self_contained_report_with_every_section(runs):
         assert f'<section id="{section}">' in page, section
     for needle in ("http://", "https://", "<script", "<link", "url(", "@import", "@font-face", "<iframe"):
         assert needle not in page.lower(), needle
-    # trajectory, errors over time, 2 render panels, PSNR, Gaussians/loss, 2 CB-KNN maps
-    assert len(images_of(page)) == 8
+    # trajectory, errors over time, unaligned error over time, 2 render panels, PSNR, Gaussians/loss, 2 CB-KNN maps
+    assert len(images_of(page)) == 9
     assert f"{metrics.trajectory.ate_rmse_c2w_cm:.2f}" in page
     assert f"{metrics.render.mean['psnr_db']:.2f}" in page
     assert "slam" in page and "checkpoint" in page  # the stage timings
@@ -69,7 +70,7 @@ def test_every_run_writes_a_self_contained_report_with_every_section(runs):
 def test_the_off_run_has_no_cbknn_section(runs):
     page = (runs["off"][0] / "report.html").read_text()
     assert '<section id="cbknn">' not in page and runs["off"][1].cbknn is None
-    assert len(images_of(page)) == 6
+    assert len(images_of(page)) == 7
 
 
 def test_metrics_hold_the_per_frame_series_keyframes_and_the_maps_frame(runs):
@@ -123,7 +124,8 @@ def test_gsjax_report_regenerates_a_runs_page_and_compares_runs_side_by_side(run
     # The runs are both called "run": they are told apart by their parents' names.
     assert "paper/run" in page and "off/run" in page
     assert "What differs" in page and 'class="best"' in page
-    assert len(images_of(page)) == 2 + 1 + 4 + 1 + 1 + 2  # trajectories, errors, panels, PSNR, map, CB-KNN maps
+    # trajectories, errors, unaligned errors, panels, PSNR, map, CB-KNN maps
+    assert len(images_of(page)) == 2 + 1 + 1 + 4 + 1 + 1 + 2
 
 
 def test_a_sweeps_directory_reports_its_runs_side_by_side(runs, tmp_path):
@@ -167,4 +169,5 @@ def test_a_run_without_ground_truth_reports_the_estimate_alone(runs, tmp_path):
     (run / "metrics.json").write_text(json.dumps(metrics))
     write_report(run)
     page = (run / "report.html").read_text()
-    assert "no ground truth" in page and len(images_of(page)) == 5  # no ATE/RPE figure
+    assert "no ground truth" in page and len(images_of(page)) == 5  # no ATE/RPE figure, no unaligned error
+    assert "No ground truth to compare with." in page

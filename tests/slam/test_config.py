@@ -126,7 +126,8 @@ def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
     structure = jax.tree_util.tree_structure(base)
     traced = {"tracking.lr_trans": "0.01", "tracking.lambda_color": "0.3", "mapping.lr_rgb": "0.01",
               "densify.sil_threshold": "0.4", "cbknn.params.alpha": "0.5", "cbknn.params.k0": "3",
-              "cbknn.params.beta": "0.1", "cbknn.lambda_color_keyframe": "0.7", "scene_radius_depth_ratio": "4"}
+              "cbknn.params.beta": "0.1", "cbknn.lambda_color_keyframe": "0.7", "scene_radius_depth_ratio": "4",
+              "mapping.clamp_rgb": "true"}
     for name, value in traced.items():
         assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) == structure, name
     static = {"tracking.iters": "5", "tracking.optimizer": "lm", "mapping.window_size": "4", "cbknn.mode": "paper",
@@ -150,6 +151,13 @@ def test_a_preset_owns_its_resolution_and_scales_its_pixel_settings():
 
     assert at_width(fraction, 640, 80).cbknn.params.alpha == cpu.cbknn.params.alpha  # a fraction, not px
     assert preset("tum", 320).mapping.overlap_margin == preset("tum").mapping.overlap_margin / 2
+    # The size bound of pruning follows the pixel footprint: twice the bound at half the width, the same at the
+    # preset's own width (the paper presets at their datasets' resolution are SplaTAM's, untouched).
+    assert preset("cpu", 40).mapping.prune_scale_ratio == 2 * cpu.mapping.prune_scale_ratio
+    assert full.mapping.prune_scale_ratio == cpu.mapping.prune_scale_ratio / 8
+    for name, width in PRESET_WIDTH.items():
+        assert preset(name, width).mapping == preset(name).mapping
+    assert preset("replica").mapping.prune_scale_ratio == 0.1  # SplaTAM's value
     assert [working_downscale("cpu", w) for w in (80, 160, 640, 1200)] == [1, 2, 8, 15]
     assert working_downscale("replica", 1200) == working_downscale("tum", 640) == 1  # paper presets: native
     with pytest.raises(ValueError, match="unknown preset 'fast'"):

@@ -60,7 +60,8 @@ def run(args) -> int:
     scale = width / PRESET_WIDTH[args.preset]
     print(f"working resolution {width}x{sequence.intrinsics.height}: pixel settings at {scale:g}x the preset's "
           f"{PRESET_WIDTH[args.preset]} px (mapping.overlap_margin {config.mapping.overlap_margin:g} px, "
-          f"cbknn.params.alpha {config.cbknn.params.alpha:g})", flush=True)
+          f"cbknn.params.alpha {config.cbknn.params.alpha:g}; mapping.prune_scale_ratio "
+          f"{config.mapping.prune_scale_ratio:g} for the {1 / scale:g}x larger pixel)", flush=True)
     live = None
     if args.viewer:
         import signal
