@@ -81,6 +81,9 @@ class TrackingConfig:
         iterations in a row have not brought the loss ``converge_rtol`` (relative) below the loss of the last
         iteration that did, ``iters`` staying the cap (``StepOutputs.tracking_iters`` counts the iterations run).
       converge_rtol: the relative loss drop that counts as progress for ``converge_window``.
+      match_exposure: (traced bool) scale the render's colour per channel to the frame's brightness before the
+        colour term (:func:`gsjax.slam.losses.exposure_gain`), so that a camera's auto exposure changing after the
+        map was made is not mistaken for motion. False: SplaTAM.
       strided_iters: 0 (SplaTAM) tracks on every pixel only; S > 0 first runs S iterations on a quarter of the
         pixels, every other one of each row and column (the four such grids in turn), rendered exactly as the full
         render renders them (:meth:`gsjax.camera.Intrinsics.strided`) at a fraction of its cost, then the ``iters``
@@ -106,6 +109,7 @@ class TrackingConfig:
     converge_window: int = static(0)
     converge_rtol: float = 1e-3
     strided_iters: int = static(0)
+    match_exposure: bool = False
 
     def __post_init__(self):
         _check_positive_int("tracking", "iters", self.iters)

@@ -23,27 +23,46 @@ def rendered_depth(view: RenderedView, normalized: bool) -> jax.Array:
     return jnp.where(covered, view.depth / jnp.where(covered, view.silhouette, 1.0), 0.0)
 
 
+def exposure_gain(color: jax.Array, color_gt: jax.Array, mask: jax.Array) -> jax.Array:
+    """[3] the per-channel gain that matches the render's brightness to the observation's over ``mask``: the ratio
+    of their sums, within [0.5, 2] (no gradient: a nuisance fitted afresh for every render)."""
+    weight = mask[..., None].astype(color.dtype)
+    gain = jnp.sum(weight * color_gt, axis=(0, 1)) / jnp.maximum(jnp.sum(weight * color, axis=(0, 1)), 1e-6)
+    return jax.lax.stop_gradient(jnp.clip(gain, 0.5, 2.0))
+
+
+def _compared_color(view: RenderedView, color_gt: jax.Array, mask: jax.Array,
+                    match_exposure: bool | jax.Array) -> jax.Array:
+    gain = exposure_gain(view.color, color_gt, mask)
+    return view.color * jnp.where(match_exposure, gain, 1.0)
+
+
 def tracking_loss(
     view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
-    lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False
+    lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False,
+    match_exposure: bool | jax.Array = False,
 ) -> jax.Array:
-    """SplaTAM's tracking loss: lambda_depth sum_M |D - D_gt| + lambda_color sum_M |C - C_gt| (sums, not means)."""
+    """SplaTAM's tracking loss: lambda_depth sum_M |D - D_gt| + lambda_color sum_M |C - C_gt| (sums, not means);
+    with ``match_exposure`` the render's colour is first scaled by :func:`exposure_gain`."""
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
     depth = rendered_depth(view, normalized_depth)
     depth_term = jnp.sum(jnp.where(mask, jnp.abs(depth - depth_gt), 0.0))
-    color_term = jnp.sum(jnp.where(mask[..., None], jnp.abs(view.color - color_gt), 0.0))
+    color = _compared_color(view, color_gt, mask, match_exposure)
+    color_term = jnp.sum(jnp.where(mask[..., None], jnp.abs(color - color_gt), 0.0))
     return lambda_depth * depth_term + lambda_color * color_term
 
 
 def tracking_residuals(
     view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
-    lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False
+    lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False,
+    match_exposure: bool | jax.Array = False,
 ) -> jax.Array:
     """The same masked terms as a residual vector [H*W*4] for least squares (Gauss-Newton / LM)."""
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
     rendered = rendered_depth(view, normalized_depth)
     depth = jnp.where(mask, rendered - depth_gt, 0.0) * jnp.sqrt(lambda_depth)
-    color = jnp.where(mask[..., None], view.color - color_gt, 0.0) * jnp.sqrt(lambda_color)
+    compared = _compared_color(view, color_gt, mask, match_exposure)
+    color = jnp.where(mask[..., None], compared - color_gt, 0.0) * jnp.sqrt(lambda_color)
     return jnp.concatenate([depth.reshape(-1), color.reshape(-1)])
 
 

@@ -89,7 +89,7 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
 
     def loss_fn(delta):
         return tracking_loss(view_at(delta), color, depth, lambda_color, cfg.lambda_depth, cfg.sil_threshold,
-                             cfg.normalized_depth)
+                             cfg.normalized_depth, cfg.match_exposure)
 
     return TrackingObjective(view_at, loss_fn, lambda_color)
 
@@ -181,7 +181,7 @@ def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided
 
         def residuals(delta, _):
             return tracking_residuals(view_at(delta), color, depth, lambda_color, cfg.lambda_depth,
-                                      cfg.sil_threshold, cfg.normalized_depth)
+                                      cfg.sil_threshold, cfg.normalized_depth, cfg.match_exposure)
 
         return optx.least_squares(residuals, solver, start, max_steps=steps, throw=False)
 

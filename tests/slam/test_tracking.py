@@ -13,7 +13,7 @@ import pytest
 from gsjax.camera import se3_exp, se3_log
 from gsjax.config_text import apply_overrides
 from gsjax.raster import render
-from gsjax.slam.losses import rendered_depth, tracking_loss
+from gsjax.slam.losses import exposure_gain, rendered_depth, tracking_loss, tracking_mask
 from gsjax.slam.presets import with_cbknn_mode
 from gsjax.slam.tracking import TrackingProblem, _track_adam, track
 from gsjax.slam.views import render_view
@@ -249,3 +249,25 @@ def test_paper_mode_keyframe_tracking_uses_the_smoothed_render_and_the_keyframe_
     np.testing.assert_allclose(float(run("paper", True).loss), expected(0.6), rtol=1e-5)
     np.testing.assert_allclose(float(run("paper", True, lambda_color_keyframe=0.2).loss), expected(0.2), rtol=1e-5)
     assert abs(expected(0.6) - expected(0.5)) > 1e-3 * expected(0.5)  # the weight is visible in the loss
+
+
+def test_match_exposure_takes_a_change_of_brightness_for_what_it_is(rendered_scene):
+    """The observation 1.3x brighter in red, 1.2x in green and blue (auto exposure after the map was made): with
+    ``match_exposure`` the colour term at the true pose is the unchanged observation's (zero), and tracking from a
+    perturbation recovers the pose as it does without the change; without it the colour term is not zero."""
+    gaussians, color, depth, w2c_true = rendered_scene
+    gain = jnp.asarray([1.3, 1.2, 1.2], jnp.float32)
+    brighter = color * gain
+    view = render_view(gaussians, w2c_true, tiny_sequence().intrinsics, map_config(), False, 0.0)
+    mask = tracking_mask(view, depth, 0.99)
+    np.testing.assert_allclose(np.asarray(exposure_gain(view.color, brighter, mask)), np.asarray(gain), rtol=1e-5)
+    assert float(exposure_gain(view.color, 9 * color, mask)[0]) == 2.0  # bounded: never a free brightness
+    loss = lambda gt, match: float(tracking_loss(view, gt, depth, 0.5, 1.0, 0.99, False, match))  # noqa: E731
+    assert loss(brighter, True) == pytest.approx(loss(color, False), rel=1e-4)  # the depth term only
+    assert loss(brighter, False) > loss(color, False) + 100
+    config = apply_overrides(tracking_config("lm", 10), {"tracking.match_exposure": "true"})
+    delta = jnp.asarray(PERTURBATIONS["a"], jnp.float32)
+    problem = TrackingProblem(gaussians, brighter, depth, se3_exp(delta) @ w2c_true, tiny_sequence().intrinsics,
+                              False, 0.0)
+    trans, rot = pose_error(track_jit(problem, config).w2c, w2c_true)
+    assert trans < 0.1 * np.linalg.norm(delta[:3]) and rot < 0.1 * np.linalg.norm(delta[3:])
