@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run
+from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.config_text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
@@ -87,8 +87,6 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
         raise ValueError(f"--map-from gt needs ground truth for frames 0..{t}; {sequence.describe_frame(missing)} has "
                          "none")
     frames = [sequence.read_host(i) for i in range(t + 1)]
-    if options.overwrite:
-        clear_previous_run(out, LANDSCAPE_OUTPUTS)
     relative_gt = None
     if gt_valid[0] and gt_valid[t]:
         relative_gt = np.linalg.inv(np.linalg.inv(gt_c2w[0]) @ gt_c2w[: t + 1])  # w2c, world = the first camera
@@ -131,10 +129,12 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     document.update(map_from=options.map_from, gamma=float(gamma), sequence=sequence.name, steps=options.steps,
                     converged_within=dict(cm=pure.CONVERGED_CM, deg=pure.CONVERGED_DEG), timings_s=timings,
                     describe=describe or {}, config=config_to_dict(config))
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / "landscape.json", document)
     from gsjax.io.plots import plot_landscape
 
-    plot_landscape(out / "landscape.png", document, title=f"{sequence.name}, frame {t} (map: {options.map_from}, "
-                                                            f"reference: {reference})")
+    with locked_run_dir(out):  # one process at a time writes a directory; a previous landscape goes only now
+        if options.overwrite:
+            clear_previous_run(out, LANDSCAPE_OUTPUTS)
+        atomic_write_json(out / "landscape.json", document)
+        plot_landscape(out / "landscape.png", document, title=f"{sequence.name}, frame {t} (map: "
+                                                                f"{options.map_from}, reference: {reference})")
     return document

@@ -24,6 +24,7 @@ and the other outputs of ``gsjax run``).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import io
@@ -36,7 +37,7 @@ import jax
 import numpy as np
 
 from gsjax.app.progress import Progress
-from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run
+from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.sweep_devices import batch_mesh, place_batch, share_results, to_host
 from gsjax.config_text import apply_overrides
 from gsjax.data.sequence import Sequence
@@ -194,15 +195,23 @@ class SweepOptions:
 def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: list[int], options: SweepOptions,
               *, describe: dict | None = None, input_warnings: tuple[str, ...] = (), say=print) -> list[dict]:
     """Run the grid of ``axes`` x ``seeds`` over ``base`` on ``sequence``; write ``runs/NNN`` per config and the
-    sweep tables; return the rows (one dict per config, the columns of ``sweep.csv``)."""
-    from gsjax.app.run_outputs import OutputOptions, run_record, write_outputs
-
-    points = expand_grid(base, axes, seeds)
+    sweep tables; return the rows (one dict per config, the columns of ``sweep.csv``). The writing process holds
+    ``options.out``'s lock (:func:`gsjax.app.run_dir.locked_run_dir`) while it runs."""
     out = Path(options.out)
     writer = jax.process_index() == 0  # the other processes of a multi-host sweep write nothing
     if writer:
         check_run_dir(out, overwrite=options.overwrite, outputs=SWEEP_OUTPUTS)
     sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
+    with locked_run_dir(out) if writer else contextlib.nullcontext():
+        return _sweep(sequence, base, axes, seeds, options, writer, describe, input_warnings, say)
+
+
+def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: list[int], options: SweepOptions,
+           writer: bool, describe: dict | None, input_warnings: tuple[str, ...], say) -> list[dict]:
+    from gsjax.app.run_outputs import OutputOptions, run_record, write_outputs
+
+    points = expand_grid(base, axes, seeds)
+    out = Path(options.out)
     if writer:
         if options.overwrite:
             clear_previous_run(out, SWEEP_OUTPUTS)

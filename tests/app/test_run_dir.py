@@ -82,14 +82,19 @@ def snapshot(out):
             for p in sorted(out.rglob("*"))}
 
 
-@pytest.mark.parametrize("flag", ["--resume", "--overwrite"])
-def test_a_run_into_a_directory_a_live_run_holds_is_refused_touching_nothing(tmp_path, capsys, flag):
+@pytest.mark.parametrize("argv", [
+    ["run", "--resume"],
+    ["run", "--overwrite"],
+    ["sweep", "--overwrite", "--grid", "tracking.lr_trans=0.001,0.002"],
+    ["landscape", "--overwrite", "--frame", "1"],
+], ids=["run-resume", "run-overwrite", "sweep", "landscape"])
+def test_a_command_into_a_directory_a_live_run_holds_is_refused_touching_nothing(tmp_path, capsys, argv):
     out = previous_run(tmp_path / "run")
     process = holding_process(out)
     try:
         before = snapshot(out)
         assert holder(out) == process.pid
-        status = main(["run", "--dataset", "synthetic", "--max-frames", "2", "--out", str(out), flag])
+        status = main([argv[0], "--dataset", "synthetic", "--max-frames", "2", "--out", str(out), *argv[1:]])
         err = capsys.readouterr().err.strip().splitlines()
         assert status == 2 and len(err) == 1, err
         assert f"is in use by a running gsjax (process {process.pid}); nothing was changed" in err[0]
