@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gsjax.app.memory import limit_malloc_arenas
 from gsjax.app.progress import Progress
 from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.run_outputs import OutputOptions, run_record, write_outputs
@@ -149,6 +150,7 @@ def run_slam(
     if len(sequence) < 1:
         raise ValueError(f"sequence {sequence.name!r} has no frames")
     sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
+    limit_malloc_arenas()  # before the checkpoints' threads allocate (see gsjax.app.memory)
     with locked_run_dir(out):
         return _run_locked(sequence, config, options, describe, on_chunk, observe, input_warnings)
 

@@ -45,8 +45,10 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exit_:
         return int(exit_.code or 0)
     from gsjax.app.compilation_cache import enable_compilation_cache
+    from gsjax.app.memory import limit_malloc_arenas
 
     enable_compilation_cache()
+    limit_malloc_arenas()
     try:
         args.overrides = parse_overrides(extra)
         return int(args.func(args) or 0)
