@@ -99,7 +99,7 @@ def test_report_opens_with_every_image_and_no_request(browser, live_run, tmp_pat
     page, log = open_page(browser, url, allowed=(url, "data:"), width=VIEWPORT[0], height=VIEWPORT[1])
     try:
         images = page.evaluate("() => Array.from(document.images).map(i => [i.complete, i.naturalWidth])")
-        assert len(images) == 8 and all(complete and width > 0 for complete, width in images), images
+        assert len(images) == 9 and all(complete and width > 0 for complete, width in images), images
         for section in ("Metrics", "Trajectory against ground truth", "Renders against inputs", "CB-KNN diagnostics"):
             assert page.get_by_role("heading", name=section).is_visible(), section
         shot = page.screenshot(full_page=True)

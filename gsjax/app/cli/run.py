@@ -61,7 +61,7 @@ def run(args) -> int:
     print(f"working resolution {width}x{sequence.intrinsics.height}: pixel settings at {scale:g}x the preset's "
           f"{PRESET_WIDTH[args.preset]} px (mapping.overlap_margin {config.mapping.overlap_margin:g} px, "
           f"cbknn.params.alpha {config.cbknn.params.alpha:g}; mapping.prune_scale_ratio "
-          f"{config.mapping.prune_scale_ratio:g} for the {1 / scale:g}x larger pixel)", flush=True)
+          f"{config.mapping.prune_scale_ratio:g}, at {1 / scale:g}x the preset's pixel footprint)", flush=True)
     live = None
     if args.viewer:
         import signal
