@@ -1,7 +1,8 @@
 """Evaluation metrics: trajectory errors (numpy float64) and image/depth metrics (pure JAX).
 
 See :mod:`gsjax.eval.trajectory` for the two ATE variants (true RMSE of camera centres vs SplaTAM's mean of
-w2c translations) and :mod:`gsjax.eval.image` for PSNR / SSIM / MS-SSIM / depth L1 (no LPIPS).
+w2c translations) and the unaligned drift per frame, :mod:`gsjax.eval.image` for PSNR / SSIM / MS-SSIM / depth L1
+(no LPIPS), and :mod:`gsjax.eval.run_metrics` for ``metrics.json`` as one typed record.
 """
 
 from gsjax.eval.association import associate_timestamps
