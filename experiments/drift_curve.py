@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.camera import invert_rigid, rotation_angle_rad
-from gsjax.eval.trajectory import drift
 from gsjax.report.figures import Series, series_png
 from gsjax.report.run_record import read_run
 
@@ -33,11 +32,10 @@ COLUMNS = ("run", "frame", "error_cm", "error_deg", "change_cm", "tracking_loss"
 def rows_of(path: Path) -> list[dict]:
     """The per-frame rows of the run in ``path`` (empty without ground truth)."""
     run = read_run(path)
-    aligned = run.ground_truth_in_map()
-    found = None if aligned is None else drift(run.map_c2w()[aligned[0]], aligned[1])
+    found = run.drift()
     if found is None:
         return []
-    frames, gt = aligned[0][found.frames], aligned[1]
+    gt = run.ground_truth_in_map()[1]  # the GT poses of found.frames, in order
     steps = invert_rigid(gt[:-1]) @ gt[1:]
     gt_cm = np.concatenate([[0.0], 100 * np.linalg.norm(steps[:, :3, 3], axis=1)])
     gt_deg = np.concatenate([[0.0], np.degrees(rotation_angle_rad(steps[:, :3, :3]))])
@@ -47,7 +45,7 @@ def rows_of(path: Path) -> list[dict]:
     return [dict(run=run.name, frame=int(t), error_cm=100 * found.error_m[i], error_deg=found.error_deg[i],
                  change_cm=100 * change[i], tracking_loss=series("tracking_loss", t),
                  depth_valid=series("depth_valid", t), gt_motion_cm=gt_cm[i], gt_motion_deg=gt_deg[i])
-            for i, t in enumerate(frames)]
+            for i, t in enumerate(found.frames)]
 
 
 def figure(rows: list[dict]) -> bytes:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 
 M_ARENA_MAX = -8  # glibc's mallopt parameter number
 ARENAS = 2
@@ -21,8 +22,6 @@ def limit_malloc_arenas(arenas: int = ARENAS) -> bool:
     """Limit glibc's malloc to ``arenas`` arenas for the rest of the process (threads started later share them);
     whether it took effect (False off glibc, e.g. macOS, or when ``MALLOC_ARENA_MAX`` is set: the user's choice
     stands). Idempotent."""
-    import os
-
     global _done
     if _done or os.environ.get("MALLOC_ARENA_MAX"):
         return _done

@@ -46,8 +46,7 @@ def holder(out: Path) -> int | None:
         try:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except BlockingIOError:
-            text = os.read(fd, 64).decode("ascii", "replace").strip()
-            return int(text) if text.isdigit() else -1
+            return _pid_written(fd)
         fcntl.flock(fd, fcntl.LOCK_UN)
         return None
     finally:
@@ -66,13 +65,18 @@ def locked_run_dir(out: Path) -> Iterator[Path]:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            text = os.read(fd, 64).decode("ascii", "replace").strip()
-            raise RunDirError(_in_use(out, int(text) if text.isdigit() else -1)) from None
+            raise RunDirError(_in_use(out, _pid_written(fd))) from None
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         yield out
     finally:
         os.close(fd)  # releases the lock
+
+
+def _pid_written(fd: int) -> int:
+    """The pid the lock's holder wrote into the file open as ``fd`` (-1 when it has not yet, or it is unreadable)."""
+    text = os.read(fd, 64).decode("ascii", "replace").strip()
+    return int(text) if text.isdigit() else -1
 
 
 def _in_use(out: Path, pid: int) -> str:

@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.eval.run_metrics import RunMetrics
-from gsjax.eval.trajectory import drift
 from gsjax.report.figures import Series, series_png
 from gsjax.report.run_record import RunRecord
 
@@ -198,12 +197,10 @@ def _drift_section(runs: list[RunRecord]) -> str:
     """Where the error enters: the unaligned camera error per frame and its change, beside what could cause it."""
     error, change, loss, depth, motion = [], [], [], [], []
     for run in runs:
-        aligned = run.ground_truth_in_map()
-        found = None if aligned is None else drift(run.map_c2w()[aligned[0]], aligned[1])
+        found = run.drift()
         if found is None:
             continue
-        rows = aligned[0]
-        frames = rows[found.frames]
+        frames = found.frames
         error.append(Series(run.name, frames, 100 * found.error_m))
         change.append(Series(run.name, frames[1:], 100 * np.diff(found.error_m)))
         steps = np.linalg.norm(np.diff(run.est_c2w[:, :3, 3], axis=0), axis=1)

@@ -18,7 +18,7 @@ import numpy as np
 
 from gsjax.eval.association import associate_timestamps
 from gsjax.eval.run_metrics import RunMetrics
-from gsjax.eval.trajectory import ground_truth_on_estimate
+from gsjax.eval.trajectory import Drift, drift, ground_truth_on_estimate
 from gsjax.io.trajectory import read_tum_trajectory
 
 
@@ -68,6 +68,16 @@ class RunRecord:
         rows, gt_rows = associate_timestamps(self.timestamps, self.gt_timestamps)
         on_estimate = ground_truth_on_estimate(self.map_c2w()[rows], self.gt_c2w[gt_rows]) if len(rows) else None
         return None if on_estimate is None else (rows[on_estimate[0]], on_estimate[1])
+
+    def drift(self) -> Drift | None:
+        """The camera error without alignment per frame (:func:`gsjax.eval.trajectory.drift`), its ``frames`` the
+        estimate rows of :meth:`ground_truth_in_map`; None without ground truth."""
+        aligned = self.ground_truth_in_map()
+        if aligned is None:
+            return None
+        rows, gt_c2w = aligned
+        found = drift(self.map_c2w()[rows], gt_c2w)
+        return None if found is None else found._replace(frames=rows[found.frames])
 
 
 def _read_json(path: Path, required: bool) -> dict | None:
