@@ -2,7 +2,8 @@
 
 See :mod:`gsjax.eval.trajectory` for the two ATE variants (true RMSE of camera centres vs SplaTAM's mean of
 w2c translations) and the unaligned drift per frame, :mod:`gsjax.eval.image` for PSNR / SSIM / MS-SSIM / depth L1
-(no LPIPS), and :mod:`gsjax.eval.run_metrics` for ``metrics.json`` as one typed record.
+(no LPIPS), :mod:`gsjax.eval.run_metrics` for ``metrics.json`` as one typed record, and :mod:`gsjax.eval.stats`
+for studies' paired differences with bootstrap intervals.
 """
 
 from gsjax.eval.association import associate_timestamps
@@ -15,6 +16,7 @@ from gsjax.eval.image import (
     ssim,
     ssim_splatam,
 )
+from gsjax.eval.stats import PairedDifference, paired_difference
 from gsjax.eval.trajectory import (
     Alignment,
     AteResult,
@@ -29,6 +31,7 @@ from gsjax.eval.trajectory import (
 __all__ = [
     "Alignment",
     "AteResult",
+    "PairedDifference",
     "RpeResult",
     "associate_timestamps",
     "ate_rmse_c2w",
@@ -36,6 +39,7 @@ __all__ = [
     "depth_l1",
     "evaluate_trajectory",
     "ms_ssim",
+    "paired_difference",
     "psnr",
     "psnr_splatam",
     "render_metrics_splatam",
