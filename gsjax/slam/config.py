@@ -272,15 +272,25 @@ class NoiseConfig:
       map_rgb: std of the noise added to those Gaussians' colours (colour units, images in [0, 1]).
       depth_cm: std (cm) of noise added to each valid pixel of the input depth, before everything (tracking,
         densification, mapping, the stored keyframe).
+      persistent_means_cm, persistent_rgb: std (cm; colour units) of noise added once to every active mean and
+        colour of the stored map itself, at the start of frame ``persistent_frame`` (before it is tracked), and left
+        there: tracking from then on sees the noisy map, and only mapping's own updates repair it (the paper's
+        "noisy Gaussian parameters"). ``persistent_frame`` >= 1 (frame 0 builds the first map).
     """
 
     map_means_cm: float = 0.0
     map_rgb: float = 0.0
     depth_cm: float = 0.0
+    persistent_means_cm: float = 0.0
+    persistent_rgb: float = 0.0
+    persistent_frame: int = 1
 
     def __post_init__(self):
-        for name in ("map_means_cm", "map_rgb", "depth_cm"):
+        for name in ("map_means_cm", "map_rgb", "depth_cm", "persistent_means_cm", "persistent_rgb"):
             _check_number("noise", name, getattr(self, name), 0.0)
+        _check_number("noise", "persistent_frame", self.persistent_frame, 1.0)
+        if is_checkable(self.persistent_frame) and np.any(np.asarray(self.persistent_frame) % 1):
+            raise ValueError(f"noise.persistent_frame must be an int >= 1, got {self.persistent_frame!r}")
 
 
 @jax.tree_util.register_dataclass

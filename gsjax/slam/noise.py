@@ -15,7 +15,8 @@ from gsjax.data.frame import Frame
 from gsjax.gaussians import Gaussians
 from gsjax.slam.config import NoiseConfig
 
-NOISE_STREAM = 1_000_003  # fold_in stream of the depth noise; the map noise uses the next one
+NOISE_STREAM = 1_000_003  # fold_in stream of the depth noise; the map noise uses the next one, the stored map's
+# persistent noise the one after
 
 MIN_NOISY_DEPTH_M = 1e-3  # noisy depth stays valid (> 0) where the input was valid
 
@@ -32,7 +33,19 @@ def add_depth_noise(frame: Frame, noise: NoiseConfig, key: jax.Array) -> Frame:
 
 def perturb_map(gaussians: Gaussians, noise: NoiseConfig, key: jax.Array) -> Gaussians:
     """``gaussians`` with N(0, (map_means_cm / 100)^2) m on each mean and N(0, map_rgb^2) on each colour channel."""
+    return _perturbed(gaussians, noise.map_means_cm, noise.map_rgb, key)
+
+
+def perturb_stored_map(gaussians: Gaussians, noise: NoiseConfig, frame: jax.Array, key: jax.Array) -> Gaussians:
+    """The stored map as frame ``frame`` starts: at ``noise.persistent_frame``, with N(0, (persistent_means_cm /
+    100)^2) m on each mean and N(0, persistent_rgb^2) on each colour channel; otherwise ``gaussians`` itself."""
+    noisy = _perturbed(gaussians, noise.persistent_means_cm, noise.persistent_rgb, key)
+    now = frame == noise.persistent_frame
+    return jax.tree_util.tree_map(lambda n, g: jnp.where(now, n, g), noisy, gaussians)
+
+
+def _perturbed(gaussians: Gaussians, means_cm, rgb_std, key: jax.Array) -> Gaussians:
     key_means, key_rgb = jax.random.split(key)
-    means = gaussians.means + jax.random.normal(key_means, gaussians.means.shape) * (noise.map_means_cm / 100.0)
-    rgb = gaussians.rgb + jax.random.normal(key_rgb, gaussians.rgb.shape) * noise.map_rgb
+    means = gaussians.means + jax.random.normal(key_means, gaussians.means.shape) * (means_cm / 100.0)
+    rgb = gaussians.rgb + jax.random.normal(key_rgb, gaussians.rgb.shape) * rgb_std
     return dataclasses.replace(gaussians, means=means, rgb=rgb)

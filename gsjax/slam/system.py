@@ -30,7 +30,7 @@ from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import densify
 from gsjax.slam.keyframes import select_window
 from gsjax.slam.mapping import gather_window_frames, map_window
-from gsjax.slam.noise import NOISE_STREAM, add_depth_noise, perturb_map
+from gsjax.slam.noise import NOISE_STREAM, add_depth_noise, perturb_map, perturb_stored_map
 from gsjax.slam.state import SlamState
 from gsjax.slam.tracking import GuardedTrack, TrackingProblem, track_guarded
 from gsjax.slam.views import is_keyframe, render_view
@@ -139,7 +139,8 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
     t = state.frame
     # A map handed in with non-finite parameters (a restored or edited state) is cleaned before tracking sees it.
     clean, freed_before = state.gaussians.without_nonfinite()
-    state = dataclasses.replace(state, gaussians=clean)
+    stored = perturb_stored_map(clean, config.noise, t, jax.random.fold_in(state.key, NOISE_STREAM + 2))
+    state = dataclasses.replace(state, gaussians=stored)
     frame = add_depth_noise(frame, config.noise, jax.random.fold_in(state.key, NOISE_STREAM))
     started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
     keyframe = _is_keyframe(state, config)

@@ -14,7 +14,7 @@ from gsjax.config_text import apply_overrides
 from gsjax.data.frame import Frame, stack_frames
 from gsjax.gaussians import Gaussians
 from gsjax.slam.config import NoiseConfig
-from gsjax.slam.noise import add_depth_noise, perturb_map
+from gsjax.slam.noise import add_depth_noise, perturb_map, perturb_stored_map
 from gsjax.slam.system import run_chunk
 from tests.support.tiny_slam import (
     CHUNK,
@@ -117,6 +117,40 @@ def test_noise_changes_the_run_reproducibly_and_zero_noise_is_the_plain_run():
     assert all_finite(noisy.outputs)
 
 
+def test_persistent_noise_perturbs_the_stored_map_at_its_frame_only():
+    n = 20000
+    gaussians = Gaussians(means=jnp.ones((n, 3)), log_scales=jnp.zeros(n), logit_opacities=jnp.zeros(n),
+                          rgb=jnp.full((n, 3), 0.5), active=jnp.ones(n, bool))
+    noise = NoiseConfig(persistent_means_cm=3.0, persistent_rgb=0.05, persistent_frame=4,
+                        map_means_cm=9.0, map_rgb=0.9)  # the fresh per-frame levels play no part here
+    noisy = perturb_stored_map(gaussians, noise, jnp.int32(4), jax.random.PRNGKey(1))
+    assert abs(float(jnp.std(noisy.means - 1.0)) - 0.03) < 0.0015
+    assert abs(float(jnp.std(noisy.rgb - 0.5)) - 0.05) < 0.0025
+    for frame in (3, 5):
+        assert_trees_equal(perturb_stored_map(gaussians, noise, jnp.int32(frame), jax.random.PRNGKey(1)), gaussians)
+
+
+def test_persistent_noise_stays_in_the_map_from_its_frame_on():
+    plain = run_tiny()
+    config = apply_overrides(tiny_config(), {"noise.persistent_means_cm": "1.0", "noise.persistent_frame": "3"})
+    noisy = run_tiny(config)
+    before = jax.tree_util.tree_map(lambda x: x[:3], noisy.outputs)
+    assert_trees_equal(before, jax.tree_util.tree_map(lambda x: x[:3], plain.outputs))
+    assert not np.allclose(noisy.w2c[3], plain.w2c[3], atol=1e-7)  # frame 3 is tracked against the noisy map
+    assert trees_differ(noisy.state.gaussians, plain.state.gaussians)
+    # Once, not afresh per frame: the fresh per-frame noise of the same level is another run.
+    fresh = run_tiny(apply_overrides(tiny_config(), {"noise.map_means_cm": "1.0"}))
+    assert trees_differ(noisy.outputs, fresh.outputs)
+    zero = apply_overrides(tiny_config(), {"noise.persistent_means_cm": "0", "noise.persistent_frame": "2"})
+    assert_trees_equal(run_tiny(zero).outputs, plain.outputs)
+    assert all_finite(noisy.outputs)
+
+
 def test_noise_levels_are_validated():
     with pytest.raises(ValueError, match="noise.depth_cm"):
         NoiseConfig(depth_cm=-1.0)
+    with pytest.raises(ValueError, match="noise.persistent_means_cm"):
+        NoiseConfig(persistent_means_cm=-0.5)
+    for frame in (0, 1.5):
+        with pytest.raises(ValueError, match="noise.persistent_frame"):
+            NoiseConfig(persistent_frame=frame)
