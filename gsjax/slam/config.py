@@ -90,6 +90,15 @@ class TrackingConfig:
         iterations on every pixel from there; only those compete for the best pose. ``adam`` keeps one state over
         all S + ``iters`` (the strided loss is scaled by 4, the pixel ratio, and the step sizes decay over all);
         ``lm`` solves on one grid with at most S steps, then on every pixel from its solution.
+      blur_radius_px: 0 (SplaTAM) compares render and frame pixel by pixel; R > 0 compiles image-space smoothing:
+        the masked residuals (render - frame, colour and depth) pass through a Gaussian filter of ``blur_px`` std
+        (px, traced) truncated at R px before the L1 sum, which is blurring render and frame together, the
+        textbook way to widen a photometric basin. ``blur_px`` 0 with R > 0 is the unblurred loss.
+      coarse_iters, coarse_levels, coarse_sigma_px: coarse-to-fine tracking (``adam`` only; needs
+        ``blur_radius_px``): ``coarse_iters`` iterations run first, split over ``coarse_levels`` levels from the
+        coarsest, each on every pixel with the residuals blurred at ``coarse_sigma_px`` x 2^(levels - 1 - level) px
+        (a Gaussian pyramid's smoothing without its subsampling), then the strided and full iterations; only the
+        full ones compete for the best pose. The step sizes decay over all iterations.
     """
 
     iters: int = static(40)
@@ -110,11 +119,25 @@ class TrackingConfig:
     converge_rtol: float = 1e-3
     strided_iters: int = static(0)
     match_exposure: bool = False
+    blur_radius_px: int = static(0)
+    blur_px: float = 0.0
+    coarse_iters: int = static(0)
+    coarse_levels: int = static(2)
+    coarse_sigma_px: float = 1.0
 
     def __post_init__(self):
         _check_positive_int("tracking", "iters", self.iters)
         _check_positive_int("tracking", "converge_window", self.converge_window, 0)
         _check_positive_int("tracking", "strided_iters", self.strided_iters, 0)
+        _check_positive_int("tracking", "blur_radius_px", self.blur_radius_px, 0)
+        _check_positive_int("tracking", "coarse_iters", self.coarse_iters, 0)
+        _check_positive_int("tracking", "coarse_levels", self.coarse_levels)
+        _check_number("tracking", "blur_px", self.blur_px, 0.0)
+        _check_number("tracking", "coarse_sigma_px", self.coarse_sigma_px, 0.0)
+        if self.coarse_iters and not self.blur_radius_px:
+            raise ValueError("tracking.coarse_iters needs tracking.blur_radius_px > 0 (the coarse levels' filter)")
+        if self.coarse_iters and self.optimizer != "adam":
+            raise ValueError("tracking.coarse_iters runs with tracking.optimizer adam only")
         _check_number("tracking", "converge_rtol", self.converge_rtol, 0.0, 1.0)
         if self.optimizer not in TRACKING_OPTIMIZERS:
             raise ValueError(f"tracking.optimizer must be one of {TRACKING_OPTIMIZERS}, got {self.optimizer!r}")

@@ -37,17 +37,40 @@ def _compared_color(view: RenderedView, color_gt: jax.Array, mask: jax.Array,
     return view.color * jnp.where(match_exposure, gain, 1.0)
 
 
+def gaussian_blur(image: jax.Array, sigma_px: float | jax.Array, radius: int) -> jax.Array:
+    """``image`` [H, W, C] filtered by a separable Gaussian of std ``sigma_px`` (px, may be traced) truncated at
+    ``radius`` px (static) and normalised over its taps, zero outside the image; ``sigma_px`` 0 returns the image."""
+    taps = jnp.arange(-radius, radius + 1, dtype=image.dtype)
+    sigma = jnp.asarray(sigma_px, image.dtype)
+    bell = jnp.exp(-0.5 * jnp.square(taps / jnp.where(sigma > 0, sigma, 1.0)))
+    weights = jnp.where(sigma > 0, bell / jnp.sum(bell), (taps == 0).astype(image.dtype))
+
+    def along(x, axis):
+        padded = jnp.pad(x, [(radius, radius) if a == axis else (0, 0) for a in range(x.ndim)])
+        size = x.shape[axis]
+        return sum(weights[i] * jax.lax.slice_in_dim(padded, i, i + size, axis=axis) for i in range(2 * radius + 1))
+
+    return along(along(image, 0), 1)
+
+
 def tracking_loss(
     view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
     lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False,
-    match_exposure: bool | jax.Array = False,
+    match_exposure: bool | jax.Array = False, blur_px: float | jax.Array = 0.0, blur_radius: int = 0,
 ) -> jax.Array:
     """SplaTAM's tracking loss: lambda_depth sum_M |D - D_gt| + lambda_color sum_M |C - C_gt| (sums, not means);
-    with ``match_exposure`` the render's colour is first scaled by :func:`exposure_gain`."""
+    with ``match_exposure`` the render's colour is first scaled by :func:`exposure_gain`. With ``blur_radius`` > 0
+    the masked residuals are first filtered by :func:`gaussian_blur` (``blur_px``): render and frame blurred
+    together."""
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
     depth = rendered_depth(view, normalized_depth)
-    depth_term = jnp.sum(jnp.where(mask, jnp.abs(depth - depth_gt), 0.0))
     color = _compared_color(view, color_gt, mask, match_exposure)
+    if blur_radius:
+        residual = jnp.concatenate([jnp.where(mask, depth - depth_gt, 0.0)[..., None],
+                                    jnp.where(mask[..., None], color - color_gt, 0.0)], axis=-1)
+        smoothed = jnp.abs(gaussian_blur(residual, blur_px, blur_radius))
+        return lambda_depth * jnp.sum(smoothed[..., 0]) + lambda_color * jnp.sum(smoothed[..., 1:])
+    depth_term = jnp.sum(jnp.where(mask, jnp.abs(depth - depth_gt), 0.0))
     color_term = jnp.sum(jnp.where(mask[..., None], jnp.abs(color - color_gt), 0.0))
     return lambda_depth * depth_term + lambda_color * color_term
 
@@ -55,14 +78,19 @@ def tracking_loss(
 def tracking_residuals(
     view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
     lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False,
-    match_exposure: bool | jax.Array = False,
+    match_exposure: bool | jax.Array = False, blur_px: float | jax.Array = 0.0, blur_radius: int = 0,
 ) -> jax.Array:
-    """The same masked terms as a residual vector [H*W*4] for least squares (Gauss-Newton / LM)."""
+    """The same masked terms as a residual vector [H*W*4] for least squares (Gauss-Newton / LM), blurred as
+    :func:`tracking_loss` blurs them."""
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
     rendered = rendered_depth(view, normalized_depth)
-    depth = jnp.where(mask, rendered - depth_gt, 0.0) * jnp.sqrt(lambda_depth)
+    depth = jnp.where(mask, rendered - depth_gt, 0.0)
     compared = _compared_color(view, color_gt, mask, match_exposure)
-    color = jnp.where(mask[..., None], compared - color_gt, 0.0) * jnp.sqrt(lambda_color)
+    color = jnp.where(mask[..., None], compared - color_gt, 0.0)
+    if blur_radius:
+        depth = gaussian_blur(depth[..., None], blur_px, blur_radius)[..., 0]
+        color = gaussian_blur(color, blur_px, blur_radius)
+    depth, color = depth * jnp.sqrt(lambda_depth), color * jnp.sqrt(lambda_color)
     return jnp.concatenate([depth.reshape(-1), color.reshape(-1)])
 
 

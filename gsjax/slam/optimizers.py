@@ -32,7 +32,7 @@ def pose_optimizer(config: SlamConfig) -> optax.GradientTransformation:
     ``lr_rot`` on phi, each decaying exponentially to ``lr_final_ratio`` of itself over the iterations; an update
     whose gradient is not finite is skipped and counted (``total_notfinite`` in the state)."""
     cfg = config.tracking
-    total = cfg.strided_iters + cfg.iters  # one Adam over the strided and the full iterations
+    total = cfg.coarse_iters + cfg.strided_iters + cfg.iters  # one Adam over every iteration of the frame
 
     def adam(lr):
         decay = lambda count: lr * cfg.lr_final_ratio ** (count / max(total - 1, 1))  # noqa: E731

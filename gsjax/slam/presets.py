@@ -40,9 +40,10 @@ def _check_name(name: str) -> None:
 
 
 def at_width(config: SlamConfig, width: int, preset_width: int) -> SlamConfig:
-    """``config`` with its pixel-sized settings (``mapping.overlap_margin``; ``cbknn.params.alpha`` when it is px)
-    scaled from ``preset_width`` to ``width`` px, and ``mapping.prune_scale_ratio`` by the pixel footprint
-    (``preset_width / width``); the very same config when the two agree."""
+    """``config`` with its pixel-sized settings (``mapping.overlap_margin``; ``cbknn.params.alpha`` when it is px;
+    ``tracking.blur_px`` and ``coarse_sigma_px``) scaled from ``preset_width`` to ``width`` px, and
+    ``mapping.prune_scale_ratio`` by the pixel footprint (``preset_width / width``); the very same config when the two
+    agree. (``tracking.blur_radius_px`` is a shape and stays.)"""
     if width == preset_width:
         return config
     scale = width / preset_width
@@ -51,6 +52,8 @@ def at_width(config: SlamConfig, width: int, preset_width: int) -> SlamConfig:
         params = dataclasses.replace(params, alpha=params.alpha * scale)
     return dataclasses.replace(
         config,
+        tracking=dataclasses.replace(config.tracking, blur_px=config.tracking.blur_px * scale,
+                                     coarse_sigma_px=config.tracking.coarse_sigma_px * scale),
         mapping=dataclasses.replace(config.mapping, overlap_margin=config.mapping.overlap_margin * scale,
                                     prune_scale_ratio=config.mapping.prune_scale_ratio / scale),
         cbknn=dataclasses.replace(config.cbknn, params=params),

@@ -89,7 +89,7 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
 
     def loss_fn(delta):
         return tracking_loss(view_at(delta), color, depth, lambda_color, cfg.lambda_depth, cfg.sil_threshold,
-                             cfg.normalized_depth, cfg.match_exposure)
+                             cfg.normalized_depth, cfg.match_exposure, cfg.blur_px, cfg.blur_radius_px)
 
     return TrackingObjective(view_at, loss_fn, lambda_color)
 
@@ -105,7 +105,22 @@ def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
         return _track_lm((objective.view_at, problem.color, problem.depth), objective.loss, problem.w2c_init, config,
                          objective.lambda_color, None if strided is None else strided(0))
     return _track_adam(objective.loss, problem.w2c_init, config,
-                       None if strided is None else lambda delta, phase: strided(phase)[0].loss(delta))
+                       None if strided is None else lambda delta, phase: strided(phase)[0].loss(delta),
+                       coarse_losses(problem, config))
+
+
+def coarse_losses(problem: TrackingProblem, config: SlamConfig) -> list[Callable]:
+    """The losses (delta [6] -> []) of coarse-to-fine tracking's levels, coarsest first: the tracking objective with
+    the residuals blurred at ``coarse_sigma_px`` x 2^(levels - 1 - level) px; empty without ``coarse_iters``."""
+    cfg = config.tracking
+    if not cfg.coarse_iters:
+        return []
+    levels = []
+    for level in range(cfg.coarse_levels):
+        sigma = cfg.coarse_sigma_px * 2.0 ** (cfg.coarse_levels - 1 - level)
+        blurred = dataclasses.replace(config, tracking=dataclasses.replace(cfg, blur_px=sigma))
+        levels.append(tracking_objective(problem, blurred).loss)
+    return levels
 
 
 def strided_problem(
@@ -126,10 +141,11 @@ def strided_problem(
     return on_grid
 
 
-def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None) -> TrackResult:
+def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coarse=()) -> TrackResult:
     """Adam on ``loss_fn`` (delta [6] -> []) for ``tracking.iters`` iterations, after ``tracking.strided_iters`` on
     ``strided_loss_fn(delta, phase)`` when given (phase = the iteration number mod 4: each of the four strided grids
-    in turn). Only full iterations compete for the best pose: strided losses of different grids do not compare."""
+    in turn), after ``tracking.coarse_iters`` split over the ``coarse`` levels' losses (coarsest first). Only full
+    iterations compete for the best pose: strided and blurred losses do not compare with them."""
     cfg = config.tracking
     optimizer = pose_optimizer(config)
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
@@ -154,6 +170,10 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None) -> 
     full_loss = lambda delta, it: loss_fn(delta)  # noqa: E731
     inf = jnp.float32(jnp.inf)
     init = (jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf)
+    for level, level_loss in enumerate(coarse):  # coarse_iters split over the levels, the remainder to the first
+        count = cfg.coarse_iters // len(coarse) + (cfg.coarse_iters % len(coarse) if level == 0 else 0)
+        it, delta, opt_state = scan(lambda d, it, f=level_loss: f(d), init, count)[:3]
+        init = (it, delta, opt_state, delta, inf, it, inf)
     if strided_loss_fn is not None and cfg.strided_iters:
         it, delta, opt_state = scan(lambda d, it: strided_loss_fn(d, it % 4), init, cfg.strided_iters)[:3]
         init = (it, delta, opt_state, delta, inf, it, inf)
@@ -176,22 +196,23 @@ def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided
     cfg = config.tracking
     solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)
 
-    def solve(problem, start, steps):
+    def solve(problem, start, steps, blur_px):
         view_at, color, depth = problem
 
         def residuals(delta, _):
             return tracking_residuals(view_at(delta), color, depth, lambda_color, cfg.lambda_depth,
-                                      cfg.sil_threshold, cfg.normalized_depth, cfg.match_exposure)
+                                      cfg.sil_threshold, cfg.normalized_depth, cfg.match_exposure, blur_px,
+                                      cfg.blur_radius_px)
 
         return optx.least_squares(residuals, solver, start, max_steps=steps, throw=False)
 
     delta0 = jnp.zeros(6, jnp.float32)
     start, strided_steps = delta0, jnp.int32(0)
     if strided is not None and cfg.strided_iters:
-        first = solve((strided[0].view_at, *strided[1:]), delta0, cfg.strided_iters)
+        first = solve((strided[0].view_at, *strided[1:]), delta0, cfg.strided_iters, cfg.blur_px / 2)  # half width
         start = jnp.where(jnp.all(jnp.isfinite(first.value)), first.value, delta0)
         strided_steps = jnp.asarray(first.stats["num_steps"], jnp.int32)
-    solution = solve(full, start, cfg.iters)
+    solution = solve(full, start, cfg.iters, cfg.blur_px)
     delta = solution.value
     start_loss, end_loss = loss_fn(delta0), loss_fn(delta)
     usable = jnp.all(jnp.isfinite(delta)) & jnp.isfinite(end_loss)

@@ -127,11 +127,13 @@ def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
     traced = {"tracking.lr_trans": "0.01", "tracking.lambda_color": "0.3", "mapping.lr_rgb": "0.01",
               "densify.sil_threshold": "0.4", "cbknn.params.alpha": "0.5", "cbknn.params.k0": "3",
               "cbknn.params.beta": "0.1", "cbknn.lambda_color_keyframe": "0.7", "scene_radius_depth_ratio": "4",
-              "mapping.clamp_rgb": "true"}
+              "mapping.clamp_rgb": "true", "tracking.blur_px": "1.5", "tracking.coarse_sigma_px": "2",
+              "noise.persistent_means_cm": "1", "noise.persistent_frame": "5"}
     for name, value in traced.items():
         assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) == structure, name
     static = {"tracking.iters": "5", "tracking.optimizer": "lm", "mapping.window_size": "4", "cbknn.mode": "paper",
-              "cbknn.params.k_max": "8", "keyframe_every": "3", "raster.max_contributors": "32"}
+              "cbknn.params.k_max": "8", "keyframe_every": "3", "raster.max_contributors": "32",
+              "tracking.blur_radius_px": "4"}
     for name, value in static.items():
         assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) != structure, name
 
@@ -144,7 +146,9 @@ def test_a_preset_owns_its_resolution_and_scales_its_pixel_settings():
     full = preset("cpu", 640)  # `gsjax run --preset cpu --downscale 1` on 640x480 input
     assert full.mapping.overlap_margin == 8 * cpu.mapping.overlap_margin == 20.0  # SplaTAM's 20 px at 640
     assert full.cbknn.params.alpha == pytest.approx(8 * cpu.cbknn.params.alpha)
-    assert config_to_dict(full.tracking) == config_to_dict(cpu.tracking)  # nothing else is in pixels
+    assert full.tracking.coarse_sigma_px == 8 * cpu.tracking.coarse_sigma_px  # the smoothing is in pixels too
+    unscaled = dataclasses.replace(full.tracking, coarse_sigma_px=cpu.tracking.coarse_sigma_px)
+    assert config_to_dict(unscaled) == config_to_dict(cpu.tracking)  # nothing else is in pixels
     fraction = dataclasses.replace(cpu, cbknn=dataclasses.replace(
         cpu.cbknn, params=dataclasses.replace(cpu.cbknn.params, shift_mode="fraction")))
     from gsjax.slam.presets import at_width

@@ -271,3 +271,110 @@ def test_match_exposure_takes_a_change_of_brightness_for_what_it_is(rendered_sce
                               False, 0.0)
     trans, rot = pose_error(track_jit(problem, config).w2c, w2c_true)
     assert trans < 0.1 * np.linalg.norm(delta[:3]) and rot < 0.1 * np.linalg.norm(delta[3:])
+
+
+# ------------------------------------------------------------------------------- image-space smoothing, coarse-to-fine
+
+
+def _dense_blur_reference(image, sigma, radius):
+    """float64: the same truncated, tap-normalised separable Gaussian as a dense [H*W, H*W] matrix product."""
+    h, w = image.shape[:2]
+    taps = np.arange(-radius, radius + 1)
+    weights = np.exp(-0.5 * (taps / sigma) ** 2)
+    weights /= weights.sum()
+
+    def matrix(n):
+        m = np.zeros((n, n))
+        for i in range(n):
+            for t, wt in zip(taps, weights):
+                if 0 <= i + t < n:
+                    m[i, i + t] = wt
+        return m
+
+    flat = np.kron(matrix(h), matrix(w))
+    return (flat @ np.asarray(image, np.float64).reshape(h * w, -1)).reshape(image.shape)
+
+
+def test_gaussian_blur_is_the_dense_filter_and_zero_sigma_is_the_image():
+    from gsjax.slam.losses import gaussian_blur
+
+    image = np.random.default_rng(0).normal(size=(9, 13, 3)).astype(np.float32)
+    for sigma in (0.7, 1.5, 3.0):
+        found = jax.jit(gaussian_blur, static_argnums=2)(jnp.asarray(image), jnp.float32(sigma), 4)
+        np.testing.assert_allclose(np.asarray(found), _dense_blur_reference(image, sigma, 4), atol=2e-6)
+    np.testing.assert_array_equal(np.asarray(gaussian_blur(jnp.asarray(image), 0.0, 4)), image)
+
+
+def test_gaussian_blur_gradient_matches_finite_differences():
+    from gsjax.slam.losses import gaussian_blur
+
+    image = jnp.asarray(np.random.default_rng(1).normal(size=(6, 7, 2)), jnp.float32)
+    probe = jnp.asarray(np.random.default_rng(2).normal(size=(6, 7, 2)), jnp.float32)
+    f = lambda sigma: jnp.sum(probe * gaussian_blur(image, sigma, 3))  # noqa: E731
+    h = 1e-2
+    numeric = (f(1.2 + h) - f(1.2 - h)) / (2 * h)
+    np.testing.assert_allclose(float(jax.grad(f)(jnp.float32(1.2))), float(numeric), rtol=2e-2, atol=1e-4)
+    g = jax.grad(lambda x: jnp.sum(probe * gaussian_blur(x, 1.2, 3)))(image)  # the filter is its own adjoint here
+    np.testing.assert_allclose(np.asarray(g), _dense_blur_reference(np.asarray(probe), 1.2, 3), atol=2e-6)
+
+
+def test_the_blurred_tracking_loss_is_the_l1_of_the_blurred_masked_residuals(rendered_scene):
+    gaussians, color, depth, w2c_true = rendered_scene
+    config = map_config()
+    cfg = config.tracking
+    w2c = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
+    view = render_view(gaussians, w2c, tiny_sequence().intrinsics, config, False, 0.0)
+    args = (view, color, depth, 0.5, 1.0, cfg.sil_threshold, cfg.normalized_depth)
+    plain = float(tracking_loss(*args))
+    np.testing.assert_allclose(float(tracking_loss(*args, False, 0.0, 4)), plain, rtol=1e-6)
+    mask = np.asarray(tracking_mask(view, depth, cfg.sil_threshold))
+    depth_residual = np.where(mask, np.asarray(rendered_depth(view, cfg.normalized_depth)) - depth, 0)
+    residual = np.concatenate([depth_residual[..., None],
+                               np.where(mask[..., None], np.asarray(view.color) - np.asarray(color), 0)], axis=-1)
+    smoothed = np.abs(_dense_blur_reference(residual, 1.5, 4))
+    expected = smoothed[..., 0].sum() + 0.5 * smoothed[..., 1:].sum()
+    np.testing.assert_allclose(float(tracking_loss(*args, False, 1.5, 4)), expected, rtol=1e-5)
+    assert float(tracking_loss(*args, False, 1.5, 4)) < plain  # opposite residuals cancel once blurred
+
+
+def test_coarse_to_fine_runs_its_levels_first_at_halving_blur_and_keeps_a_full_iteration_s_pose(rendered_scene):
+    from gsjax.slam.tracking import coarse_losses, tracking_objective
+
+    gaussians, color, depth, w2c_true = rendered_scene
+    w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["b"], jnp.float32)) @ w2c_true
+    intrinsics = tiny_sequence().intrinsics
+    config = apply_overrides(tracking_config("adam", 20), {
+        "tracking.blur_radius_px": "4", "tracking.coarse_iters": "31", "tracking.coarse_levels": "3",
+        "tracking.coarse_sigma_px": "0.5"})
+    problem = TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0)
+    levels = coarse_losses(problem, config)
+    zero = jnp.zeros(6, jnp.float32)
+    view = tracking_objective(problem, config).view_at(zero)
+    cfg = config.tracking
+    for level, sigma in zip(levels, (2.0, 1.0, 0.5)):
+        expected = tracking_loss(view, color, depth, cfg.lambda_color, cfg.lambda_depth, cfg.sil_threshold,
+                                 cfg.normalized_depth, False, sigma, 4)
+        np.testing.assert_allclose(float(level(zero)), float(expected), rtol=1e-6)
+    result = track_jit(problem, config)
+    assert int(result.iterations) == 31 + 20
+    trans, rot = pose_error(result.w2c, w2c_true)
+    assert trans < 0.1 * np.linalg.norm(PERTURBATIONS["b"][:3]) and rot < 0.1 * np.linalg.norm(PERTURBATIONS["b"][3:])
+    full = tracking_objective(problem, config)  # blur_px 0: the reported loss is the unblurred one
+    np.testing.assert_allclose(float(result.loss), float(full.loss(se3_log(result.w2c @ jnp.linalg.inv(w2c_init)))),
+                               rtol=1e-4)
+
+
+def test_smoothing_settings_are_checked_and_scale_with_the_pixel():
+    from gsjax.slam.config import TrackingConfig
+    from gsjax.slam.presets import at_width
+
+    with pytest.raises(ValueError, match="blur_radius_px"):
+        TrackingConfig(coarse_iters=10)
+    with pytest.raises(ValueError, match="adam only"):
+        TrackingConfig(coarse_iters=10, blur_radius_px=4, optimizer="lm")
+    with pytest.raises(ValueError, match="tracking.blur_px"):
+        TrackingConfig(blur_px=-1.0)
+    config = apply_overrides(map_config(), {"tracking.blur_px": "2", "tracking.coarse_sigma_px": "1",
+                                            "tracking.blur_radius_px": "6"})
+    half = at_width(config, 40, 80).tracking
+    assert (float(half.blur_px), float(half.coarse_sigma_px), half.blur_radius_px) == (1.0, 0.5, 6)
