@@ -1,92 +1,125 @@
-"""Robustness study: ATE of CB-KNN ``off`` vs ``paper`` under map noise, depth noise and faster motion (frame
-stride), over several seeds, on the noisy synthetic room and the 7-Scenes kitchen sample.
+"""Robustness study: ATE of CB-KNN ``off`` vs ``paper`` under map noise (fresh per frame, or persistent in the stored
+map), depth noise and faster motion (frame stride), paired over seeds, at the cpu preset's 80x60.
 
-    python experiments/robustness.py --work /tmp/gsjax_robustness --seeds 5 --frames 18
+    python experiments/robustness.py --work /work/gsjax_study/robustness --seeds 5 --frames 60
 
-Map noise: N(0, sigma) cm on every mean of the map a frame's tracking renders (noise.map_means_cm, drawn afresh
-per frame; the stored map is untouched). Depth noise: N(0, sigma) cm on every valid input depth pixel
-(noise.depth_cm). Stride: every s-th frame (``--stride``). Each factor is one `gsjax sweep` per sequence (the noise
-levels and seeds as one vmapped program per CB-KNN mode). Writes ``experiments/results/robustness.csv`` (mean and
-std of the ATE over the seeds) and ``robustness.png``.
+Conditions, each one `gsjax sweep` per sequence (``--grid cbknn.mode=off,paper`` and ``--seeds``: ``off`` and ``paper``
+run on the same seeds, so each seed is a pair):
+
+- clean, and fresh map noise: N(0, sigma) cm on every mean of the map a frame's tracking renders, drawn afresh per
+  frame, the stored map untouched (``noise.map_means_cm``);
+- persistent map noise: N(0, sigma) cm added once to every mean of the stored map as frame ``frames // 6`` starts
+  (frame 10 of 60) and left there (``noise.persistent_means_cm``, ``noise.persistent_frame``): the paper's noisy
+  Gaussian parameters;
+- depth noise: N(0, sigma) cm on every valid input depth pixel (``noise.depth_cm``);
+- stride: every s-th frame (``--stride``; not on the 4-frame Replica sample).
+
+A sweep already finished in ``--work`` is reused, so an interrupted study continues; ``--sequences`` and
+``--conditions`` select parts. Writes ``experiments/results/robustness_80x60.csv`` (mean and std over the seeds, n),
+``robustness_80x60_paired.csv`` (paper - off per seed: the mean difference and its 95 % bootstrap interval, whether
+it excludes zero) and ``robustness_80x60.png``.
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import numpy as np
-from studies import RESULTS, SEQUENCES, mean_std, sweep, write_result_csv
+from studies import AVAILABLE_FRAMES, RESULTS, SEQUENCES, mean_std, paired_rows, sweep, write_result_csv
 
-MAP_NOISE_CM = ("0", "1", "2")
-DEPTH_NOISE_CM = ("2", "4")  # 0 is the map-noise sweep's 0 row
-STRIDES = (2, 4, 8)  # 1 likewise
+# condition -> (factor, sweep flags); levels come from the grid values.
+MAP_NOISE_CM = ("0", "1")
+PERSISTENT_NOISE_CM = ("1", "2")
+DEPTH_NOISE_CM = ("2",)
+STRIDES = (4,)
+CONDITIONS = ("map", "persistent", "depth", "stride")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, required=True, help="where the sweeps run (outside git)")
     parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--frames", type=int, default=18)
+    parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--sequences", default=",".join(SEQUENCES))
+    parser.add_argument("--conditions", default=",".join(CONDITIONS))
     args = parser.parse_args()
-    common = ["--max-frames", str(args.frames), "--seeds", str(args.seeds), "--grid", "cbknn.mode=off,paper"]
     commands: list[str] = []
-    rows = []
+    rows, timings = [], []
+    conditions = args.conditions.split(",")
     for name in args.sequences.split(","):
-        data = SEQUENCES[name]
-        found = sweep(args.work, f"{name}_map", [*data, *common, "--grid",
-                                                   "noise.map_means_cm=" + ",".join(MAP_NOISE_CM)], commands)
-        for r in found:
-            rows.append(dict(r, sequence=name, factor="map_noise_cm", level=r["noise.map_means_cm"]))
-            if float(r["noise.map_means_cm"]) == 0.0:  # the clean run is level 0 of every factor
-                rows.append(dict(r, sequence=name, factor="depth_noise_cm", level="0"))
-                rows.append(dict(r, sequence=name, factor="stride", level="1"))
-        found = sweep(args.work, f"{name}_depth", [*data, *common, "--grid",
-                                                     "noise.depth_cm=" + ",".join(DEPTH_NOISE_CM)], commands)
-        rows += [dict(r, sequence=name, factor="depth_noise_cm", level=r["noise.depth_cm"]) for r in found]
-        for stride in STRIDES:
-            found = sweep(args.work, f"{name}_stride{stride}", [*data, *common, "--stride", str(stride)], commands)
-            rows += [dict(r, sequence=name, factor="stride", level=str(stride)) for r in found]
+        frames = min(args.frames, AVAILABLE_FRAMES[name] or args.frames)
+        common = [*SEQUENCES[name], "--max-frames", str(frames), "--seeds", str(args.seeds),
+                  "--grid", "cbknn.mode=off,paper"]
 
+        def run(tag, extra):
+            t0 = time.perf_counter()
+            found = sweep(args.work, f"{name}_{tag}", [*common, *extra], commands)
+            timings.append((f"{name}_{tag}", time.perf_counter() - t0))
+            return found
+
+        if "map" in conditions:
+            for r in run("map", ["--grid", "noise.map_means_cm=" + ",".join(MAP_NOISE_CM)]):
+                level = r["noise.map_means_cm"]
+                clean = float(level) == 0.0  # the baseline of every factor
+                rows.append(dict(r, sequence=name, factor="clean" if clean else "map_noise_cm",
+                                 level="" if clean else level))
+        if "persistent" in conditions:
+            at = str(max(1, frames // 6))
+            for r in run("persistent", ["--grid", "noise.persistent_means_cm=" + ",".join(PERSISTENT_NOISE_CM),
+                                        "--noise.persistent_frame", at]):
+                rows.append(dict(r, sequence=name, factor="persistent_noise_cm", level=r["noise.persistent_means_cm"]))
+        if "depth" in conditions:
+            for r in run("depth", ["--grid", "noise.depth_cm=" + ",".join(DEPTH_NOISE_CM)]):
+                rows.append(dict(r, sequence=name, factor="depth_noise_cm", level=r["noise.depth_cm"]))
+        if "stride" in conditions and frames > 8:
+            for stride in STRIDES:
+                for r in run(f"stride{stride}", ["--stride", str(stride)]):
+                    rows.append(dict(r, sequence=name, factor="stride", level=str(stride)))
+
+    keys = ["sequence", "factor", "level"]
     table = []
-    for key in dict.fromkeys((r["sequence"], r["factor"], r["level"], r["cbknn.mode"]) for r in rows):
-        group = [r for r in rows if (r["sequence"], r["factor"], r["level"], r["cbknn.mode"]) == key]
+    for key in dict.fromkeys(tuple(r[k] for k in [*keys, "cbknn.mode"]) for r in rows):
+        group = [r for r in rows if tuple(r[k] for k in [*keys, "cbknn.mode"]) == key]
         ate, ate_std, n = mean_std(r["ate_rmse_cm"] for r in group)
         psnr, psnr_std, _ = mean_std(r["psnr_db"] for r in group)
         table.append(dict(sequence=key[0], factor=key[1], level=key[2], mode=key[3], ate_cm_mean=f"{ate:.4f}",
                           ate_cm_std=f"{ate_std:.4f}", psnr_db_mean=f"{psnr:.3f}", psnr_db_std=f"{psnr_std:.3f}",
-                          seeds=n))
-    write_result_csv(RESULTS / "robustness.csv", table, list(table[0]), commands)
-    plot(table, RESULTS / "robustness.png")
+                          n=n))
+    paired = []
+    for metric in ("ate_rmse_cm", "psnr_db"):
+        for row in paired_rows(rows, keys, metric):
+            paired.append({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in row.items()})
+    commands += [f"# wall time of {tag}: {seconds:.0f} s" for tag, seconds in timings]
+    write_result_csv(RESULTS / "robustness_80x60.csv", table, list(table[0]), commands)
+    write_result_csv(RESULTS / "robustness_80x60_paired.csv", paired, list(paired[0]), commands)
+    plot(paired, RESULTS / "robustness_80x60.png")
 
 
-def plot(table: list[dict], path: Path) -> None:
+def plot(paired: list[dict], path: Path) -> None:
+    """Paired differences paper - off (ATE, cm) with their 95 % intervals, a panel per sequence."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    sequences = list(dict.fromkeys(r["sequence"] for r in table))
-    factors = list(dict.fromkeys(r["factor"] for r in table))
-    fig = Figure(figsize=(4.2 * len(factors), 3.4 * len(sequences)), layout="constrained")
+    ate = [r for r in paired if r["metric"] == "ate_rmse_cm"]
+    sequences = list(dict.fromkeys(r["sequence"] for r in ate))
+    fig = Figure(figsize=(7.5, 0.8 + 2.8 * len(sequences)), layout="constrained")
     FigureCanvasAgg(fig)
     for i, sequence in enumerate(sequences):
-        for j, factor in enumerate(factors):
-            ax = fig.add_subplot(len(sequences), len(factors), i * len(factors) + j + 1)
-            for mode, colour, shift in (("off", "tab:blue", -0.02), ("paper", "tab:orange", 0.02)):
-                pts = sorted((float(r["level"]), float(r["ate_cm_mean"]), float(r["ate_cm_std"])) for r in table
-                             if (r["sequence"], r["factor"], r["mode"]) == (sequence, factor, mode))
-                if not pts:
-                    continue
-                x, y, e = map(np.asarray, zip(*pts))
-                ax.errorbar(x * (1 + shift) if factor == "stride" else x + shift * (x.max() or 1), y, yerr=e,
-                            color=colour, marker="o", markersize=3, capsize=2, label=mode)
-            if factor == "stride":
-                ax.set_xscale("log", base=2)
-            ax.set_xlabel(factor.replace("_", " "))
-            ax.set_ylabel("ATE RMSE (cm), mean +- std")
-            ax.set_title(sequence, fontsize=9)
-            ax.grid(True, linewidth=0.3)
-            ax.legend(fontsize=7)
+        ax = fig.add_subplot(len(sequences), 1, i + 1)
+        mine = [r for r in ate if r["sequence"] == sequence]
+        labels = [f"{r['factor']} {r['level']} (n={r['n']})".replace("  ", " ") for r in mine]
+        y = np.array([float(r["difference"]) for r in mine])
+        low = y - np.array([float(r["ci_low"]) for r in mine])
+        high = np.array([float(r["ci_high"]) for r in mine]) - y
+        x = np.arange(len(mine))
+        ax.errorbar(x, y, yerr=[np.nan_to_num(low), np.nan_to_num(high)], fmt="o", capsize=3)
+        ax.axhline(0.0, color="grey", linewidth=0.8)
+        ax.set_xticks(x, labels, rotation=20, fontsize=7)
+        ax.set_ylabel("ATE paper - off (cm)")
+        ax.set_title(f"{sequence}: mean paired difference, 95 % bootstrap interval", fontsize=9)
+        ax.grid(True, linewidth=0.3)
     fig.savefig(path, dpi=110)
     print(f"wrote {path}")
 

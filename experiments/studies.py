@@ -19,13 +19,22 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
 SEVEN_SCENES = ROOT.parent / "shared" / "data" / "7scenes_redkitchen"
+REPLICA = ROOT.parent / "shared" / "data" / "replica_office0_mini" / "office0"
 
-# name -> the gsjax flags that select it. 40x30 working images (downscale 4 of the synthetic 160x120, 16 of
-# 7-Scenes' 640x480) keep a study of hundreds of configs within a CPU session.
+# name -> the gsjax flags that select it, at the cpu preset's own working size (about 80 px wide: the synthetic
+# 160x120 at downscale 2, 7-Scenes' 640x480 at 8, Replica's 1200x680 at 15, 80x45).
 SEQUENCES = {
+    "synthetic_noisy": ["--dataset", "synthetic", "--synthetic-noise"],
+    "7scenes": ["--dataset", "7scenes", "--path", str(SEVEN_SCENES)],
+    "replica": ["--dataset", "replica", "--path", str(REPLICA)],
+}
+# The studies before 2026-12-04 ran at 40x30 (these flags); their CSVs' headers hold the exact commands.
+SEQUENCES_40 = {
     "synthetic_noisy": ["--dataset", "synthetic", "--synthetic-noise", "--downscale", "4"],
     "7scenes": ["--dataset", "7scenes", "--path", str(SEVEN_SCENES), "--downscale", "16"],
 }
+# Frames each sequence has (the Replica sample holds 4).
+AVAILABLE_FRAMES = {"synthetic_noisy": None, "7scenes": 150, "replica": 4}
 
 
 def sweep(work: Path, name: str, argv: list[str], log: list[str]) -> list[dict]:
@@ -66,6 +75,32 @@ def mean_std(values) -> tuple[float, float, int]:
     if v.size == 0:
         return float("nan"), float("nan"), 0
     return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else 0.0, int(v.size)
+
+
+def paired_rows(rows: list[dict], keys: list[str], metric: str = "ate_rmse_cm", a: str = "off",
+                b: str = "paper") -> list[dict]:
+    """Per group of ``keys``: the paired difference b - a of ``metric`` over the seeds the two modes share
+    (:func:`gsjax.eval.stats.paired_difference`, 95 % bootstrap interval), with n."""
+    from gsjax.eval.stats import paired_difference
+
+    groups: dict = {}
+    for row in rows:
+        key = tuple(row[k] for k in keys)
+        value = float(row[metric]) if row[metric] not in ("", None) else float("nan")
+        groups.setdefault(key, {}).setdefault(row["cbknn.mode"], {})[row["seed"]] = value
+    out = []
+    for key, modes in groups.items():
+        seeds = sorted(set(modes.get(a, {})) & set(modes.get(b, {})), key=int)
+        found = paired_difference([modes[a][s] for s in seeds], [modes[b][s] for s in seeds])
+        out.append({**dict(zip(keys, key)), "metric": metric, "n": found.n, f"{a}_mean": _mean(modes[a], seeds),
+                    f"{b}_mean": _mean(modes[b], seeds), "difference": found.mean, "ci_low": found.low,
+                    "ci_high": found.high, "excludes_zero": found.excludes_zero})
+    return out
+
+
+def _mean(values: dict, seeds: list) -> float:
+    finite = [values[s] for s in seeds if np.isfinite(values[s])]
+    return float(np.mean(finite)) if finite else float("nan")
 
 
 def summarise(rows: list[dict], keys: list[str], metric: str = "ate_rmse_cm") -> list[dict]:
