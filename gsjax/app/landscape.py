@@ -1,21 +1,32 @@
-"""``gsjax landscape``: frame T's tracking-loss landscape, CB-KNN ``off`` vs ``paper``, on the map of frames 0..T-1.
+"""``gsjax landscape``: frame T's tracking-loss landscape, CB-KNN ``off`` vs ``paper`` (or the ``modes`` asked for,
+:data:`MODES`), on the map of frames 0..T-1.
 
 1. The map: SLAM over frames 0..T-1 (:func:`gsjax.slam.run`; ``--map-from gt`` maps them at their ground-truth
    poses instead, so the map has no tracking error).
 2. The reference pose: frame T's ground-truth pose (in the SLAM world frame, the first camera), or, without ground
    truth, the pose the tracker gives frame T from the constant-velocity prediction.
 3. Along each axis, at every grid offset: the tracking loss and its ``jax.grad`` (:mod:`gsjax.slam.landscape`), and
-   whether the tracker started there returns to within 0.5 cm / 0.5 deg of the reference, for ``off`` (the
-   canonical render) and ``paper`` (the smoothed render keyframe tracking uses, with its colour weight and CB-KNN's
-   motion gamma from frames T-2, T-1), all on the same map.
+   whether the tracker started there returns to within 0.5 cm / 0.5 deg of the reference (``basin``) and of its
+   own fixed point, where it ends when started at the reference (``basin_fixed``: without the map's bias), for
+   ``off`` (the canonical render) and ``paper`` (the smoothed render keyframe tracking uses, with its colour weight
+   and CB-KNN's motion gamma from frames T-2, T-1), all on the same map.
+4. With ``grid2d`` (two axes): the same over the plane of both axes, ``steps`` x ``steps`` points, so steps^2
+   tracker runs per mode (beside the A steps + 1 of the axes); its basin is the largest normalised radius
+   sqrt((a / e_a)^2 + (b / e_b)^2) (e the grid's half-widths) inside which every point converged
+   (:func:`gsjax.slam.landscape.basin_2d`), with the fraction of the grid that converged.
 
-Writes ``landscape.json`` and ``landscape.png`` into ``--out``.
+Writes ``landscape.json`` and ``landscape.png`` (with ``grid2d`` also ``landscape2d.png``) into ``--out``.
+JSON: ``axes[axis][mode]`` per axis and mode (loss, grad, converged, final errors, basin, and against the fixed
+point converged_fixed, final_fixed_error_cm / _deg, basin_fixed); ``fixed_point[mode]`` (its w2c, its distance
+from the reference, its offset along every axis); ``grid2d`` (axes, units, offsets per axis, and per mode
+[S][S] lists indexed [i][j] = (offsets[axes[0]][i], offsets[axes[1]][j]), basin and area, each also _fixed).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
@@ -23,23 +34,33 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
+from gsjax.camera import se3_log
 from gsjax.config_text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
 from gsjax.slam import landscape as pure
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import run as slam_run
-from gsjax.slam.presets import with_cbknn_mode
+from gsjax.slam.presets import with_cbknn_mode, with_coarse_to_fine, with_image_smoothing
 from gsjax.slam.system import tracking_problem
 from gsjax.slam.tracking import track
 
-MODES = ("off", "paper")
+# mode -> (its tracking config from the run's, whether frame T renders smoothed (CB-KNN, as on a keyframe)). A mode
+# is one line here.
+MODES: dict[str, tuple[Callable[[SlamConfig], SlamConfig], bool]] = {
+    "off": (lambda config: with_cbknn_mode(config, "off"), False),
+    "paper": (lambda config: with_cbknn_mode(config, "paper"), True),
+    "blur": (lambda config: with_image_smoothing(with_cbknn_mode(config, "off")), False),
+    "pyramid": (lambda config: with_coarse_to_fine(with_cbknn_mode(config, "off")), False),
+}
 
 
 @dataclasses.dataclass(frozen=True)
 class LandscapeOptions:
     """``frame`` T; ``axes`` names (:data:`gsjax.slam.landscape.AXES`); grid half-widths ``extent_cm`` and
-    ``extent_deg``; ``steps`` grid points per axis; ``map_from`` ``"slam"`` or ``"gt"``; ``seed``; ``out``."""
+    ``extent_deg``; ``steps`` grid points per axis; ``map_from`` ``"slam"`` or ``"gt"``; ``seed``; ``out``;
+    ``modes`` (keys of :data:`MODES`); ``grid2d``: also the plane of the two ``axes`` (steps^2 tracker runs per
+    mode); ``batch``: tracker runs vmapped at a time (memory)."""
 
     out: Path
     frame: int
@@ -51,11 +72,21 @@ class LandscapeOptions:
     seed: int = 0
     chunk: int = 8
     overwrite: bool = False
+    modes: tuple[str, ...] = ("off", "paper")
+    grid2d: bool = False
+    batch: int = 64
 
     def __post_init__(self):
         unknown = [a for a in self.axes if a not in pure.AXES]
         if not self.axes or unknown or len(set(self.axes)) != len(self.axes):
             raise ValueError(f"--axes must name distinct axes among {', '.join(pure.AXES)}, got {','.join(self.axes)}")
+        if self.grid2d and len(self.axes) != 2:
+            raise ValueError(f"--grid2d needs --axes naming exactly two axes, got {','.join(self.axes)}")
+        unknown = [m for m in self.modes if m not in MODES]
+        if not self.modes or unknown or len(set(self.modes)) != len(self.modes):
+            raise ValueError(f"--modes must name distinct modes among {', '.join(MODES)}, got {','.join(self.modes)}")
+        if self.batch < 1:
+            raise ValueError(f"--batch must be >= 1, got {self.batch}")
         if self.steps < 2:
             raise ValueError(f"--steps must be >= 2, got {self.steps}")
         if not (self.extent_cm > 0 and self.extent_deg > 0):
@@ -74,8 +105,8 @@ def grid(options: LandscapeOptions) -> np.ndarray:
 
 def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOptions, *, describe: dict | None = None,
                   say=print) -> dict:
-    """Build the map, evaluate both modes' landscapes, write ``landscape.json`` / ``landscape.png``; return the
-    JSON document."""
+    """Build the map, evaluate each mode's landscapes, write ``landscape.json`` / ``landscape.png`` (and
+    ``landscape2d.png``); return the JSON document."""
     out = Path(options.out)
     check_run_dir(out, overwrite=options.overwrite, outputs=LANDSCAPE_OUTPUTS)
     t = options.frame
@@ -106,35 +137,85 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
         reference, w2c_ref = "tracked", track(problem, config).w2c
     offsets = grid(options)
     directions = pure.directions(options.axes)
-    document = dict(frame=t, reference=reference, reference_w2c=np.asarray(w2c_ref, np.float64).tolist(), axes={})
+    document = dict(frame=t, reference=reference, reference_w2c=np.asarray(w2c_ref, np.float64).tolist(), axes={},
+                    modes=list(options.modes), fixed_point={})
     for axis, row in zip(options.axes, offsets):
         document["axes"][axis] = dict(unit=pure.AXES[axis][1], offsets=[float(o) for o in row])
+    if options.grid2d:
+        document["grid2d"] = dict(axes=list(options.axes), units=[pure.AXES[a][1] for a in options.axes],
+                                  offsets={a: [float(o) for o in row] for a, row in zip(options.axes, offsets)})
     timings = dict(map_s=map_s)
-    for mode in MODES:
+    for mode in options.modes:
         t0 = time.perf_counter()
-        mode_config = with_cbknn_mode(config, mode)
-        # Around the reference pose; paper renders smoothed at every offset (as on a keyframe), off never.
-        around = problem._replace(w2c_init=w2c_ref, smooth=jnp.bool_(mode == "paper"))
-        result = jax.device_get(pure.landscape(around, mode_config, directions, jnp.asarray(offsets, jnp.float32)))
+        configure, smooth = MODES[mode]
+        # Around the reference pose; a smoothed mode renders smoothed at every offset (as on a keyframe).
+        around = problem._replace(w2c_init=w2c_ref, smooth=jnp.bool_(smooth))
+        result = jax.device_get(pure.landscape(around, configure(config), directions,
+                                               jnp.asarray(offsets, jnp.float32), plane=options.grid2d,
+                                               batch=options.batch))
         timings[f"{mode}_s"] = time.perf_counter() - t0
+        document["fixed_point"][mode] = _fixed_point(result.fixed_w2c, w2c_ref)
         for i, axis in enumerate(options.axes):
-            converged = (result.error_cm[i] <= pure.CONVERGED_CM) & (result.error_deg[i] <= pure.CONVERGED_DEG)
-            document["axes"][axis][mode] = dict(
-                loss=[float(v) for v in result.loss[i]], grad=[float(v) for v in result.grad[i]],
-                basin=pure.basin_width(offsets[i], converged), converged=[bool(c) for c in converged],
-                final_error_cm=[float(v) for v in result.error_cm[i]],
-                final_error_deg=[float(v) for v in result.error_deg[i]])
-        say(f"{mode}: " + ", ".join(f"{a} basin {document['axes'][a][mode]['basin']:g} {document['axes'][a]['unit']}"
-                                    for a in options.axes))
+            document["axes"][axis][mode] = _line_entry(result, i, offsets[i])
+        fixed, entries = document["fixed_point"][mode], [document["axes"][a] for a in options.axes]
+        say(f"{mode}: " + ", ".join(f"{a} basin {e[mode]['basin']:g} {e['unit']} (to its fixed point "
+                                    f"{e[mode]['basin_fixed']:g})" for a, e in zip(options.axes, entries))
+            + f"; fixed point {fixed['error_cm']:.3g} cm, {fixed['error_deg']:.3g} deg from the reference")
+        if options.grid2d:
+            entry = document["grid2d"][mode] = _plane_entry(result.plane, offsets)
+            say(f"{mode}: {' x '.join(options.axes)} basin radius {entry['basin']:.2f} of the extent (to its fixed "
+                f"point {entry['basin_fixed']:.2f}), converged from {100 * entry['area']:.0f} % of the grid "
+                f"({100 * entry['area_fixed']:.0f} %)")
     document.update(map_from=options.map_from, gamma=float(gamma), sequence=sequence.name, steps=options.steps,
                     converged_within=dict(cm=pure.CONVERGED_CM, deg=pure.CONVERGED_DEG), timings_s=timings,
                     describe=describe or {}, config=config_to_dict(config))
-    from gsjax.io.plots import plot_landscape
+    from gsjax.io.plots import plot_landscape, plot_landscape2d
 
+    title = f"{sequence.name}, frame {t} (map: {options.map_from}, reference: {reference})"
     with locked_run_dir(out):  # one process at a time writes a directory; a previous landscape goes only now
         if options.overwrite:
             clear_previous_run(out, LANDSCAPE_OUTPUTS)
         atomic_write_json(out / "landscape.json", document)
-        plot_landscape(out / "landscape.png", document, title=f"{sequence.name}, frame {t} (map: "
-                                                                f"{options.map_from}, reference: {reference})")
+        plot_landscape(out / "landscape.png", document, title=title)
+        if options.grid2d:
+            plot_landscape2d(out / "landscape2d.png", document, title=title)
     return document
+
+
+def _line_entry(result: pure.Landscape, i: int, offsets: np.ndarray) -> dict:
+    """Axis ``i``'s entry of one mode: loss, grad, where the tracker ends, basins (vs reference, vs fixed point)."""
+    converged = pure.converged(result.error_cm[i], result.error_deg[i])
+    converged_fixed = pure.converged(result.fixed_error_cm[i], result.fixed_error_deg[i])
+    return dict(loss=_floats(result.loss[i]), grad=_floats(result.grad[i]),
+                basin=pure.basin_width(offsets, converged), converged=converged.tolist(),
+                final_error_cm=_floats(result.error_cm[i]), final_error_deg=_floats(result.error_deg[i]),
+                basin_fixed=pure.basin_width(offsets, converged_fixed), converged_fixed=converged_fixed.tolist(),
+                final_fixed_error_cm=_floats(result.fixed_error_cm[i]),
+                final_fixed_error_deg=_floats(result.fixed_error_deg[i]))
+
+
+def _plane_entry(plane: pure.Landscape2d, offsets: np.ndarray) -> dict:
+    """The 2-D grid's entry of one mode: [S][S] loss, converged masks and final errors; basin radii and areas."""
+    converged = pure.converged(plane.error_cm, plane.error_deg)
+    converged_fixed = pure.converged(plane.fixed_error_cm, plane.fixed_error_deg)
+    basin, area = pure.basin_2d(offsets[0], offsets[1], converged)
+    basin_fixed, area_fixed = pure.basin_2d(offsets[0], offsets[1], converged_fixed)
+    return dict(loss=_floats(plane.loss), converged=converged.tolist(), converged_fixed=converged_fixed.tolist(),
+                final_error_cm=_floats(plane.error_cm), final_error_deg=_floats(plane.error_deg),
+                final_fixed_error_cm=_floats(plane.fixed_error_cm),
+                final_fixed_error_deg=_floats(plane.fixed_error_deg),
+                basin=basin, area=area, basin_fixed=basin_fixed, area_fixed=area_fixed)
+
+
+def _floats(values) -> list:
+    """An array of any rank as nested lists of floats."""
+    return np.asarray(values, np.float64).tolist()
+
+
+def _fixed_point(w2c: np.ndarray, w2c_ref: jax.Array) -> dict:
+    """The fixed point's w2c, its distance from the reference (cm, deg) and its offset along every axis (the
+    residual left perturbation's tangent in the axes' units)."""
+    error_cm, error_deg = pure.pose_error(jnp.asarray(w2c), w2c_ref)
+    tangent = np.asarray(se3_log(jnp.asarray(w2c) @ jnp.linalg.inv(w2c_ref)), np.float64)
+    return dict(w2c=_floats(w2c), error_cm=float(error_cm), error_deg=float(error_deg),
+                offsets={name: float(tangent[component] / scale) for name, (component, _, scale) in pure.AXES.items()})

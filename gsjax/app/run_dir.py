@@ -27,7 +27,7 @@ class RunDirError(ValueError):
 
 # ... of a sweep and of a landscape.
 SWEEP_OUTPUTS = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json", "runs", "report.html")
-LANDSCAPE_OUTPUTS = ("landscape.json", "landscape.png")
+LANDSCAPE_OUTPUTS = ("landscape.json", "landscape.png", "landscape2d.png")
 
 
 # The lock a live run holds on its directory (an advisory flock: the kernel drops it when the process ends, however

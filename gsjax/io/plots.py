@@ -1,5 +1,5 @@
 """Plots with matplotlib's Agg backend (no pyplot, no global state): trajectory top view, errors over time, sweep
-heat maps, landscapes and CB-KNN's K and rho maps.
+heat maps, landscapes (1-D and 2-D) and CB-KNN's K and rho maps.
 
 Each function builds its own Figure, renders it to PNG in memory (:func:`png_bytes`) and writes the file atomically.
 """
@@ -171,12 +171,19 @@ def plot_sweep_heatmap(path: str | os.PathLike, rows: list[dict], fields: list[s
     return _save(fig, path, dpi)
 
 
+def _landscape_colours(modes: list[str]) -> dict[str, str]:
+    """A colour per landscape mode: ``off`` and ``paper`` as always, others from the tab10 cycle."""
+    fixed = {"off": "tab:blue", "paper": "tab:orange"}
+    others = iter(f"C{i}" for i in range(2, 10))  # C0, C1 are tab:blue, tab:orange
+    return {mode: fixed.get(mode) or next(others, "0.3") for mode in modes}
+
+
 def plot_landscape(path: str | os.PathLike, document: dict, title: str | None = None, dpi: int = 120) -> Path:
-    """Loss (top row) and gradient (bottom row) per axis of a ``landscape.json`` document, one line per CB-KNN mode,
-    each mode's basin of convergence marked by dashed lines at +- its width."""
+    """Loss (top row) and gradient (bottom row) per axis of a ``landscape.json`` document, one line per mode, each
+    mode's basin of convergence marked by dashed lines at +- its width (dotted: the basin to its fixed point)."""
     axes = list(document["axes"])
     fig = Figure(figsize=(4 * len(axes), 6), layout="constrained")
-    colours = {"off": "tab:blue", "paper": "tab:orange"}
+    colours = _landscape_colours(document.get("modes", ["off", "paper"]))
     for i, name in enumerate(axes):
         entry = document["axes"][name]
         offsets = np.asarray(entry["offsets"])
@@ -185,11 +192,13 @@ def plot_landscape(path: str | os.PathLike, document: dict, title: str | None = 
             for mode, colour in colours.items():
                 if mode not in entry:
                     continue
+                fixed = f", fixed {entry[mode]['basin_fixed']:g}" if "basin_fixed" in entry[mode] else ""
                 ax.plot(offsets, entry[mode][key], color=colour, linewidth=1.2, marker=".", markersize=3,
-                        label=f"{mode} (basin {entry[mode]['basin']:g} {entry['unit']})")
-                if row == 0 and entry[mode]["basin"] > 0:
-                    for side in (-1, 1):
-                        ax.axvline(side * entry[mode]["basin"], color=colour, linestyle="--", linewidth=0.8)
+                        label=f"{mode} (basin {entry[mode]['basin']:g}{fixed} {entry['unit']})")
+                for basin, style in ((entry[mode]["basin"], "--"), (entry[mode].get("basin_fixed", 0), ":")):
+                    if row == 0 and basin > 0:
+                        for side in (-1, 1):
+                            ax.axvline(side * basin, color=colour, linestyle=style, linewidth=0.8)
             if key == "grad":
                 ax.axhline(0.0, color="0.5", linewidth=0.5)
             ax.set_xlabel(f"{name} ({entry['unit']})")
@@ -200,6 +209,49 @@ def plot_landscape(path: str | os.PathLike, document: dict, title: str | None = 
     if title:
         fig.suptitle(title)
     return _save(fig, path, dpi)
+
+
+def plot_landscape2d(path: str | os.PathLike, document: dict, title: str | None = None, dpi: int = 120) -> Path:
+    """The ``grid2d`` of a ``landscape.json`` document: per mode, the loss as a heat map over the two axes, outlined
+    where the tracker converged to the reference (white) and to its fixed point (red, dashed), the reference (+) and
+    the fixed point (x, its offsets along the two axes) marked."""
+    plane = document["grid2d"]
+    (a, b), (unit_a, unit_b) = plane["axes"], plane["units"]
+    x, y = np.asarray(plane["offsets"][a]), np.asarray(plane["offsets"][b])
+    modes = [m for m in document.get("modes", ["off", "paper"]) if m in plane]
+    fig = Figure(figsize=(4.2 * len(modes), 3.8), layout="constrained")
+    for i, mode in enumerate(modes):
+        entry = plane[mode]
+        ax = fig.add_subplot(1, len(modes), i + 1)
+        # [i][j] = (x[i], y[j]): transposed so x runs along the image's columns.
+        shown = ax.pcolormesh(x, y, np.asarray(entry["loss"]).T, cmap="viridis", shading="nearest")
+        fig.colorbar(shown, ax=ax, shrink=0.85, label="tracking loss")
+        for key, colour, style, name in (("converged", "white", "-", "reference"),
+                                         ("converged_fixed", "red", "--", "fixed point")):
+            # Padded with "not converged" half a step beyond the grid, so the outline closes along its edges.
+            mask = np.pad(np.asarray(entry[key], np.float64).T, 1)
+            if mask.any():
+                ax.contour(_padded(x), _padded(y), mask, levels=[0.5], colors=colour, linestyles=style,
+                           linewidths=1.2)
+            ax.plot([], [], color=colour, linestyle=style, label=f"converged to the {name}")
+        ax.plot([0], [0], marker="+", color="white", markersize=10, linestyle="none", label="reference")
+        fixed = document.get("fixed_point", {}).get(mode)
+        if fixed is not None:
+            ax.plot([fixed["offsets"][a]], [fixed["offsets"][b]], marker="x", color="red", markersize=8,
+                    linestyle="none", label="fixed point")
+        ax.set_xlabel(f"{a} ({unit_a})")
+        ax.set_ylabel(f"{b} ({unit_b})")
+        ax.set_title(f"{mode}: basin r {entry['basin']:.2f} (fixed {entry['basin_fixed']:.2f}), "
+                     f"area {100 * entry['area']:.0f} % ({100 * entry['area_fixed']:.0f} %)", fontsize=8)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncols=4, fontsize=7, facecolor="0.6")
+    if title:
+        fig.suptitle(title, fontsize=9)
+    return _save(fig, path, dpi)
+
+
+def _padded(offsets: np.ndarray) -> np.ndarray:
+    """Grid offsets with a point half a step beyond each end."""
+    return np.concatenate([[1.5 * offsets[0] - 0.5 * offsets[1]], offsets, [1.5 * offsets[-1] - 0.5 * offsets[-2]]])
 
 
 def plot_cbknn_maps(path: str | os.PathLike, k_map: npt.ArrayLike, rho_map: npt.ArrayLike, cell: int,

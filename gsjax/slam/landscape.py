@@ -1,24 +1,36 @@
 """Tracking-loss landscapes: one frame's tracking loss (exactly the tracker's, :func:`tracking_objective`) and its
 ``jax.grad`` under left perturbations of a reference pose along the six pose axes, and the tracker's basin of
-convergence on the same grid. Pure and vmapped over every grid point.
+convergence on the same grid, along single axes (1-D) and over the plane of two axes (2-D). Pure; vmapped over the
+grid's points (in batches, :func:`map_batched`), one compiled program for the axes and their plane.
 
 A perturbation of ``offset`` along an axis is ``w2c = exp(offset * unit * e_axis) @ w2c_ref`` with the tangent
 ordered (rho, phi): ``tx ty tz`` translate the camera by ``offset`` cm along its own axes, ``rx ry rz`` rotate it by
-``offset`` degrees about them. Gradients are d loss / d offset in the axis's unit (per cm, per degree).
+``offset`` degrees about them; a 2-D grid point (a, b) is ``exp(a * unit_a * e_a + b * unit_b * e_b) @ w2c_ref``.
+Gradients are d loss / d offset in the axis's unit (per cm, per degree).
+
+Where the tracker started at a grid point ends is measured twice: from the reference pose, and from the tracker's
+own fixed point p* (where it ends when started at the reference itself). With a map that is not exact, p* is off the
+reference (its bias); the basin against p* is the one the optimiser has, the basin against the reference adds the
+bias to it.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from gsjax.camera import rotation_angle, se3_exp
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.tracking import TrackingProblem, track, tracking_objective
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 # name -> (tangent component, unit, metres or radians per unit)
 AXES = {
@@ -38,14 +50,37 @@ def directions(axes: tuple[str, ...]) -> jax.Array:
     return jnp.stack(rows)
 
 
+class Landscape2d(NamedTuple):
+    """Over the plane of two axes, at grid point [i, j] = (offsets[0][i], offsets[1][j]): loss [S, S], grad [S, S, 2]
+    (d loss / d offset per unit of each axis), the tracker's final pose final_w2c [S, S, 4, 4] from there, its
+    distance from the reference error_cm / error_deg [S, S] and from the fixed point fixed_error_cm /
+    fixed_error_deg [S, S]."""
+
+    loss: jax.Array
+    grad: jax.Array
+    final_w2c: jax.Array
+    error_cm: jax.Array
+    error_deg: jax.Array
+    fixed_error_cm: jax.Array
+    fixed_error_deg: jax.Array
+
+
 class Landscape(NamedTuple):
     """Along each axis [A] at each offset [S]: loss [A, S], grad [A, S] (per unit offset), and where the tracker
-    started there ends: error_cm [A, S] (translation of its pose from the reference), error_deg [A, S] (rotation)."""
+    started there ends: error_cm [A, S] (translation of its pose from the reference), error_deg [A, S] (rotation),
+    fixed_error_cm / fixed_error_deg [A, S] (the same from the fixed point), final_w2c [A, S, 4, 4]. fixed_w2c
+    [4, 4]: the fixed point, where the tracker started at the reference ends. plane: the 2-D landscape of the two
+    axes when asked for, else None."""
 
     loss: jax.Array
     grad: jax.Array
     error_cm: jax.Array
     error_deg: jax.Array
+    fixed_error_cm: jax.Array
+    fixed_error_deg: jax.Array
+    final_w2c: jax.Array
+    fixed_w2c: jax.Array
+    plane: Landscape2d | None = None
 
 
 def loss_and_grad(problem: TrackingProblem, config: SlamConfig, direction: jax.Array,
@@ -57,44 +92,115 @@ def loss_and_grad(problem: TrackingProblem, config: SlamConfig, direction: jax.A
     return jax.vmap(along)(offsets)
 
 
+def pose_error(w2c: jax.Array, w2c_ref: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Distance of poses ``w2c`` [..., 4, 4] from ``w2c_ref`` [4, 4]: the residual left perturbation's translation
+    (cm [...]) and rotation angle (deg [...])."""
+    relative = w2c @ jnp.linalg.inv(w2c_ref)
+    angle = jnp.vectorize(rotation_angle, signature="(3,3)->()")(relative[..., :3, :3])
+    return 100.0 * jnp.linalg.norm(relative[..., :3, 3], axis=-1), jnp.degrees(angle)
+
+
 def tracked_from(problem: TrackingProblem, config: SlamConfig, direction: jax.Array,
                  offsets: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Run the tracker (its optimiser and iterations) from each perturbed pose; its final distance from the reference
     pose ``problem.w2c_init`` as (translation cm [S], rotation deg [S])."""
     w2c_ref = problem.w2c_init
-
-    def one(offset):
-        result = track(problem._replace(w2c_init=se3_exp(direction * offset) @ w2c_ref), config)
-        relative = result.w2c @ jnp.linalg.inv(w2c_ref)  # the residual left perturbation
-        return 100.0 * jnp.linalg.norm(relative[:3, 3]), jnp.degrees(rotation_angle(relative[:3, :3]))
-
-    return jax.vmap(one)(offsets)
+    start = lambda offset: se3_exp(direction * offset) @ w2c_ref  # noqa: E731
+    final = jax.vmap(lambda offset: track(problem._replace(w2c_init=start(offset)), config).w2c)(offsets)
+    return pose_error(final, w2c_ref)
 
 
-@jax.jit
-def landscape(problem: TrackingProblem, config: SlamConfig, directions: jax.Array, offsets: jax.Array) -> Landscape:
+def map_batched(fn, xs: jax.Array, batch: int | None):
+    """``fn`` over the leading axis of ``xs`` [N, ...], ``batch`` at a time (``jax.vmap`` within a batch, batches in
+    sequence; all at once when None). The batches are as even as their count allows, the last one padded with
+    copies of ``xs[-1]`` (under one per batch), so the program holds ``fn`` once."""
+    n = xs.shape[0]
+    batches = 1 if batch is None else -(-n // max(1, batch))
+    batch = -(-n // batches)
+    padded = jnp.concatenate([xs, jnp.repeat(xs[-1:], batches * batch - n, axis=0)])
+    return jax.tree.map(lambda v: v[:n], jax.lax.map(fn, padded, batch_size=batch))
+
+
+def _evaluate(problem: TrackingProblem, config: SlamConfig, tangents: jax.Array, batch: int | None):
+    """At every tangent [N, 6] around ``problem.w2c_init``: the loss [N], its gradient [N, 6] (per m and rad) and the
+    tracker's final pose from there [N, 4, 4]; and the fixed point [4, 4], the tracker's from the reference itself
+    (one run more in the same batches, :func:`map_batched`)."""
+    objective = tracking_objective(problem, config)
+
+    def one(tangent):
+        loss, grad = jax.value_and_grad(objective.loss)(tangent)
+        start = se3_exp(tangent) @ problem.w2c_init
+        return loss, grad, track(problem._replace(w2c_init=start), config).w2c
+
+    loss, grad, final = map_batched(one, jnp.concatenate([tangents, jnp.zeros((1, 6), tangents.dtype)]), batch)
+    return loss[:-1], grad[:-1], final[:-1], final[-1]
+
+
+@functools.partial(jax.jit, static_argnames=("plane", "batch"))
+def landscape(problem: TrackingProblem, config: SlamConfig, directions: jax.Array, offsets: jax.Array,
+              plane: bool = False, batch: int | None = None) -> Landscape:
     """:func:`loss_and_grad` and :func:`tracked_from` along every direction [A, 6] at every offset [A, S], around
-    the reference pose ``problem.w2c_init``."""
+    the reference pose ``problem.w2c_init``, and the fixed point. With ``plane`` (A = 2): also the 2-D landscape
+    over the grid offsets[0] x offsets[1] (S^2 tracker runs more), in the same batch so one program compiles.
+    ``batch``: tracker runs vmapped at a time (memory; None: all A S + 1 (+ S^2) at once)."""
+    num_axes, steps = offsets.shape
+    tangents = [(directions[:, None, :] * offsets[..., None]).reshape(-1, 6)]  # [A S, 6]
+    if plane:
+        if num_axes != 2:
+            raise ValueError(f"a 2-D landscape needs exactly two axes, got {num_axes}")
+        grid = offsets[0][:, None, None] * directions[0] + offsets[1][None, :, None] * directions[1]  # [S, S, 6]
+        tangents.append(grid.reshape(-1, 6))
+    loss, grad, final, fixed = _evaluate(problem, config, jnp.concatenate(tangents), batch)
+    error_cm, error_deg = pose_error(final, problem.w2c_init)
+    fixed_cm, fixed_deg = pose_error(final, fixed)
+    count = num_axes * steps
+    line = lambda values: values[:count].reshape(num_axes, steps, *values.shape[1:])  # noqa: E731
+    result = Landscape(line(loss), jnp.einsum("asj,aj->as", line(grad), directions), line(error_cm),
+                       line(error_deg), line(fixed_cm), line(fixed_deg), line(final), fixed)
+    if not plane:
+        return result
+    square = lambda values: values[count:].reshape(steps, steps, *values.shape[1:])  # noqa: E731
+    return result._replace(plane=Landscape2d(
+        square(loss), square(grad) @ directions.T, square(final), square(error_cm), square(error_deg),
+        square(fixed_cm), square(fixed_deg)))
 
-    def axis(direction, grid):
-        loss, grad = loss_and_grad(problem, config, direction, grid)
-        error_cm, error_deg = tracked_from(problem, config, direction, grid)
-        return Landscape(loss, grad, error_cm, error_deg)
 
-    return jax.vmap(axis)(directions, offsets)
+def converged(error_cm: npt.ArrayLike, error_deg: npt.ArrayLike) -> np.ndarray:
+    """Whether a final pose is within :data:`CONVERGED_CM` and :data:`CONVERGED_DEG` of its target (any shape)."""
+    return (np.asarray(error_cm) <= CONVERGED_CM) & (np.asarray(error_deg) <= CONVERGED_DEG)
+
+
+def basin_radius(radii: npt.ArrayLike, converged: npt.ArrayLike) -> float:
+    """The largest grid radius r such that the tracker converged from every grid point with radius <= r: the
+    radius of the farthest point nearer than the nearest failure (0 when it fails from the point nearest the
+    reference; the largest radius when it never fails). ``radii`` >= 0 and ``converged`` of one shape; radii within
+    1e-6 (relative) of each other count as equal."""
+    radii = np.abs(np.asarray(radii, np.float64)).ravel()
+    converged = np.asarray(converged, bool).ravel()
+    failed = radii[~converged]
+    nearest_failure = failed.min() if failed.size else np.inf
+    inside = radii[radii < nearest_failure * (1.0 - 1e-6)]
+    return float(inside.max()) if inside.size else 0.0
 
 
 def basin_width(offsets: Iterable[float], converged: Iterable[bool]) -> float:
     """The largest |offset| r such that the tracker converged from every grid offset with |offset| <= r (0 when
     it fails from the grid point nearest the reference)."""
-    width = 0.0
-    points = sorted(zip((abs(float(o)) for o in offsets), (bool(c) for c in converged)))
-    i = 0
-    while i < len(points):
-        radius = points[i][0]
-        same = [c for r, c in points if r == radius]
-        if not all(same):
-            break
-        width = radius
-        i += len(same)
-    return width
+    return basin_radius(np.abs(np.asarray(list(offsets), np.float64)), list(converged))
+
+
+def normalised_radii(offsets_a: npt.ArrayLike, offsets_b: npt.ArrayLike) -> np.ndarray:
+    """[S_a, S_b] sqrt((a / e_a)^2 + (b / e_b)^2) at grid point (a, b), e_a and e_b the grid's half-widths: 1 on the
+    ellipse inscribed in the grid."""
+    a, b = np.asarray(offsets_a, np.float64), np.asarray(offsets_b, np.float64)
+    return np.hypot(a[:, None] / np.abs(a).max(), b[None, :] / np.abs(b).max())
+
+
+def basin_2d(offsets_a: npt.ArrayLike, offsets_b: npt.ArrayLike, converged: npt.ArrayLike) -> tuple[float, float]:
+    """The 2-D basin of a grid ``offsets_a`` x ``offsets_b`` with ``converged`` [S_a, S_b]: (the largest normalised
+    radius r in [0, 1] (:func:`normalised_radii`) such that the tracker converged from every grid point with radius
+    <= r, a fraction of the grid's half-widths; the fraction of the grid's points it converged from)."""
+    radii = normalised_radii(offsets_a, offsets_b)
+    converged = np.asarray(converged, bool)
+    within = radii <= 1.0 + 1e-6  # the corners beyond the inscribed ellipse would make it a partial ring
+    return basin_radius(radii[within], converged[within]), float(converged.mean())

@@ -127,6 +127,26 @@ def _preset_values(name: str) -> SlamConfig:
     )
 
 
+def with_image_smoothing(config: SlamConfig, blur_px: float = 1.5, radius_px: int = 6) -> SlamConfig:
+    """``config`` tracking on residuals blurred by a Gaussian of ``blur_px`` std (px at the config's working width)
+    truncated at ``radius_px`` (``tracking.blur_px``, ``blur_radius_px``): image-space smoothing, the textbook
+    alternative to CB-KNN for a wider basin."""
+    tracking = dataclasses.replace(config.tracking, blur_px=blur_px, blur_radius_px=radius_px)
+    return dataclasses.replace(config, tracking=tracking)
+
+
+def with_coarse_to_fine(config: SlamConfig, iters: int = 20, levels: int = 2, sigma_px: float = 1.0,
+                        radius_px: int = 6) -> SlamConfig:
+    """``config`` tracking coarse to fine: ``iters`` iterations over ``levels`` blur levels (``sigma_px`` at the
+    finest, doubling per coarser level; px at the working width) first, taken from the strided iterations where
+    there are that many, so a frame runs as many iterations as before (each coarse one on every pixel)."""
+    cfg = config.tracking
+    tracking = dataclasses.replace(cfg, coarse_iters=iters, coarse_levels=levels, coarse_sigma_px=sigma_px,
+                                   blur_radius_px=max(cfg.blur_radius_px, radius_px),
+                                   strided_iters=max(cfg.strided_iters - iters, 0))
+    return dataclasses.replace(config, tracking=tracking)
+
+
 def with_cbknn_mode(config: SlamConfig, mode: str) -> SlamConfig:
     """The config with CB-KNN switched to ``mode`` (``off``, ``code_parity``, ``paper``)."""
     return dataclasses.replace(config, cbknn=dataclasses.replace(config.cbknn, mode=mode))

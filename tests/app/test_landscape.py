@@ -1,5 +1,6 @@
 """`gsjax landscape`: its gradients agree with finite differences of its own loss, the basin rule, the JSON
-contract, and the map built at ground-truth poses."""
+contract (the axes, the tracker's fixed point, the 2-D grid), the modes asked for, and the map built at ground-truth
+poses."""
 
 from __future__ import annotations
 
@@ -33,11 +34,15 @@ def config():
     return preset("cpu", 40)
 
 
+# The axes and their 2-D grid (steps^2 tracker runs more, in the same compiled program as the axes').
+LANDSCAPE = ["--frame", str(FRAME), "--steps", str(STEPS), "--axes", "tx,rz", "--extent-cm", "1", "--extent-deg", "1",
+             "--map-from", "gt", "--grid2d"]
+
+
 @pytest.fixture(scope="module")
 def landscape_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("landscape") / "l"
-    assert main(["landscape", "--out", str(out), *RUN, "--frame", str(FRAME), "--steps", str(STEPS),
-                 "--axes", "tx,rz", "--extent-cm", "1", "--extent-deg", "1", "--map-from", "gt"]) == 0
+    assert main(["landscape", "--out", str(out), *RUN, *LANDSCAPE]) == 0
     return out
 
 
@@ -57,6 +62,85 @@ def test_landscape_json_has_the_contract_layout(landscape_dir):
     # paper renders the smoothed keyframe view with its own colour weight: another landscape.
     assert doc["axes"]["tx"]["off"]["loss"] != doc["axes"]["tx"]["paper"]["loss"]
     assert (landscape_dir / "landscape.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_the_fixed_point_is_where_the_tracker_started_at_the_reference_ends(landscape_dir):
+    """On the tiny map the tracker started at the ground truth ends away from it (measured 0.89 cm off, 0.68 cm
+    paper): basin_fixed counts convergence to that point, basin to the reference."""
+    doc = json.loads((landscape_dir / "landscape.json").read_text())
+    assert doc["modes"] == ["off", "paper"]
+    for mode in ("off", "paper"):
+        fixed = doc["fixed_point"][mode]
+        assert fixed["error_cm"] > 0.05 and np.asarray(fixed["w2c"]).shape == (4, 4)
+        assert sorted(fixed["offsets"]) == sorted(pure.AXES)
+        for axis in ("tx", "rz"):
+            entry = doc["axes"][axis][mode]
+            # The grid point at offset 0 is the reference: the tracker from there is the fixed point.
+            assert entry["final_fixed_error_cm"][STEPS // 2] < 1e-3
+            assert entry["final_error_cm"][STEPS // 2] == pytest.approx(fixed["error_cm"], abs=1e-3)
+            assert entry["converged_fixed"] == pure.converged(entry["final_fixed_error_cm"],
+                                                             entry["final_fixed_error_deg"]).tolist()
+            assert entry["basin_fixed"] == pure.basin_width(doc["axes"][axis]["offsets"], entry["converged_fixed"])
+
+
+def test_grid2d_json_holds_the_plane_of_the_two_axes_and_its_heat_map(landscape_dir):
+    doc = json.loads((landscape_dir / "landscape.json").read_text())
+    plane = doc["grid2d"]
+    assert plane["axes"] == ["tx", "rz"] and plane["units"] == ["cm", "deg"]
+    assert plane["offsets"] == {axis: doc["axes"][axis]["offsets"] for axis in ("tx", "rz")}
+    for mode in ("off", "paper"):
+        entry = plane[mode]
+        for key in ("loss", "converged", "converged_fixed", "final_error_cm", "final_error_deg",
+                    "final_fixed_error_cm", "final_fixed_error_deg"):
+            assert np.asarray(entry[key]).shape == (STEPS, STEPS), key
+        assert np.all(np.isfinite(entry["loss"]))
+        # [i][j] = (tx_i, rz_j): the plane's lines through the reference are the axes' own landscapes.
+        np.testing.assert_allclose(np.asarray(entry["loss"])[:, STEPS // 2], doc["axes"]["tx"][mode]["loss"], rtol=1e-5)
+        np.testing.assert_allclose(np.asarray(entry["loss"])[STEPS // 2], doc["axes"]["rz"][mode]["loss"], rtol=1e-5)
+        for suffix in ("", "_fixed"):
+            converged = np.asarray(entry["converged" + suffix])
+            assert (entry["basin" + suffix], entry["area" + suffix]) == pure.basin_2d(
+                plane["offsets"]["tx"], plane["offsets"]["rz"], converged)
+            assert 0 <= entry["basin" + suffix] <= 1
+    assert (landscape_dir / "landscape2d.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_modes_are_an_option(tmp_path, landscape_dir):
+    """``--modes paper`` evaluates paper alone, exactly as beside off."""
+    out = tmp_path / "l"
+    assert main(["landscape", "--out", str(out), *RUN, *LANDSCAPE, "--modes", "paper"]) == 0
+    doc = json.loads((out / "landscape.json").read_text())
+    both = json.loads((landscape_dir / "landscape.json").read_text())
+    assert doc["modes"] == ["paper"] and list(doc["fixed_point"]) == ["paper"]
+    assert "off" not in doc["axes"]["tx"] and "off" not in doc["grid2d"]
+    np.testing.assert_allclose(doc["axes"]["tx"]["paper"]["loss"], both["axes"]["tx"]["paper"]["loss"], rtol=1e-6)
+
+
+def test_a_mode_is_one_registry_entry(monkeypatch):
+    from gsjax.app import landscape as app
+
+    monkeypatch.setitem(app.MODES, "wider", (lambda c: c, False))
+    assert app.LandscapeOptions(out="x", frame=1, modes=("off", "wider")).modes == ("off", "wider")
+    with pytest.raises(ValueError, match="--modes must name distinct modes among off, paper, blur, pyramid, wider, "
+                                         "got off,blurry"):
+        app.LandscapeOptions(out="x", frame=1, modes=("off", "blurry"))
+
+
+def test_the_classic_alternatives_are_tracking_variants_of_off():
+    from gsjax.app import landscape as app
+    from gsjax.slam.presets import preset
+
+    base = preset("cpu")
+    blur, blur_smooth = app.MODES["blur"]
+    pyramid, pyramid_smooth = app.MODES["pyramid"]
+    blurred, coarse = blur(base).tracking, pyramid(base).tracking
+    assert not blur_smooth and not pyramid_smooth
+    assert blur(base).cbknn.mode == pyramid(base).cbknn.mode == "off"
+    assert (blurred.blur_radius_px, float(blurred.blur_px), blurred.coarse_iters) == (6, 1.5, 0)
+    assert (coarse.coarse_iters, coarse.coarse_levels, float(coarse.blur_px)) == (20, 2, 0.0)
+    # As many iterations per frame as the preset: the coarse ones replace strided ones.
+    assert coarse.coarse_iters + coarse.strided_iters + coarse.iters == base.tracking.strided_iters + \
+        base.tracking.iters
 
 
 @functools.lru_cache(maxsize=None)
@@ -132,6 +216,11 @@ def test_basin_width_is_the_largest_radius_converged_on_both_sides():
     (["--frame", "3", "--axes", "tx,qq"], "--axes must name"),
     (["--frame", "3", "--steps", "1"], "--steps must be >= 2"),
     (["--frame", "99", "--max-frames", str(FRAMES)], "past the sequence's last frame"),
+    (["--frame", "3", "--axes", "tx", "--grid2d"], "--grid2d needs --axes naming exactly two axes, got tx"),
+    (["--frame", "3", "--axes", "tx,ry,rz", "--grid2d"], "--grid2d needs --axes naming exactly two axes"),
+    (["--frame", "3", "--modes", "off,blurry"], "--modes must name distinct modes among off, paper"),
+    (["--frame", "3", "--modes", "paper,paper"], "--modes must name distinct modes"),
+    (["--frame", "3", "--batch", "0"], "--batch must be >= 1"),
 ])
 def test_bad_landscape_arguments_are_one_line_errors(tmp_path, capsys, argv, message):
     assert main(["landscape", "--out", str(tmp_path / "l"), *RUN, *argv]) == 2
