@@ -1,11 +1,17 @@
-"""Tracking-loss landscapes on several 7-Scenes frames: basin widths and slopes of CB-KNN ``off`` vs ``paper``.
+"""Basins of the tracker on real frames: CB-KNN ``off`` and ``paper`` beside the classic ways to widen a photometric
+basin, image-space smoothing (``blur``) and coarse-to-fine tracking (``pyramid``), at the cpu preset's 80x60.
 
-    python experiments/landscapes.py --work /tmp/gsjax_landscapes --frames 10,25,40 --axes tx,tz,ry
+    python experiments/landscapes.py --work /work/gsjax_study/landscapes --sequence 7scenes --frames 10,25,40,55
+    python experiments/landscapes.py --work /work/gsjax_study/landscapes --sequence replica --frames 1,2,3
 
-Each frame is one `gsjax landscape` (map from SLAM over the frames before it, or with ``--map-from gt`` at their GT
-poses; reference = the GT pose). Writes ``experiments/results/landscapes.csv`` (``landscapes_gt.csv`` for GT maps;
-per frame, axis and mode: basin width, loss and |gradient| at the grid's ends, the loss's minimum offset) and
-``landscapes.png`` (every frame's loss curves, normalised per frame).
+Each frame is one ``gsjax landscape --grid2d`` over two axes (default tx x ry; map from SLAM over the frames before
+it, or with ``--map-from gt`` at their GT poses; reference = the GT pose): along each axis and over their plane, the
+tracker is run from every grid point and counts as converged within 0.5 cm / 0.5 deg, of the reference (``basin``)
+and of its own fixed point (``basin_fixed``, where it ends when started at the reference: the basin without the
+map's bias). Writes ``experiments/results/landscapes_SEQUENCE.csv`` (per frame, mode and axis or plane: the basins,
+for the plane the normalised radius and the converged share, the fixed point's distance from the reference, the
+seconds per mode) and ``landscapes_SEQUENCE.png`` (basin_fixed per mode and frame). An existing landscape in
+``--work`` is reused.
 """
 
 from __future__ import annotations
@@ -20,16 +26,19 @@ from pathlib import Path
 import numpy as np
 from studies import RESULTS, ROOT, SEQUENCES, write_result_csv
 
+MODES = "off,paper,blur,pyramid"
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, required=True)
-    parser.add_argument("--frames", default="10,25,40")
-    parser.add_argument("--axes", default="tx,tz,ry")
-    parser.add_argument("--steps", default="13")
+    parser.add_argument("--sequence", default="7scenes", choices=list(SEQUENCES))
+    parser.add_argument("--frames", default="10,25,40,55")
+    parser.add_argument("--axes", default="tx,ry")
+    parser.add_argument("--steps", default="11")
     parser.add_argument("--extent-cm", default="3")
     parser.add_argument("--extent-deg", default="3")
-    parser.add_argument("--sequence", default="7scenes", choices=list(SEQUENCES))
+    parser.add_argument("--modes", default=MODES)
     parser.add_argument("--map-from", default="slam", choices=("slam", "gt"))
     args = parser.parse_args()
     suffix = "" if args.map_from == "slam" else "_gt"
@@ -38,7 +47,7 @@ def main() -> None:
         out = args.work / f"{args.sequence}_frame{frame:04d}{suffix}"
         command = [sys.executable, "-m", "gsjax", "landscape", "--out", str(out), *SEQUENCES[args.sequence],
                    "--frame", str(frame), "--axes", args.axes, "--steps", args.steps, "--extent-cm", args.extent_cm,
-                   "--extent-deg", args.extent_deg, "--map-from", args.map_from]
+                   "--extent-deg", args.extent_deg, "--map-from", args.map_from, "--modes", args.modes, "--grid2d"]
         commands.append("gsjax " + shlex.join(command[3:]))
         if not (out / "landscape.json").is_file():
             print("running:", commands[-1], flush=True)
@@ -46,37 +55,48 @@ def main() -> None:
         docs[frame] = json.loads((out / "landscape.json").read_text())
     table = []
     for frame, doc in docs.items():
-        for axis, entry in doc["axes"].items():
-            offsets = np.asarray(entry["offsets"])
-            for mode in ("off", "paper"):
-                loss, grad = np.asarray(entry[mode]["loss"]), np.asarray(entry[mode]["grad"])
-                table.append(dict(frame=frame, axis=axis, unit=entry["unit"], mode=mode, basin=entry[mode]["basin"],
-                                  argmin=float(offsets[np.argmin(loss)]), loss_at_0=float(np.interp(0, offsets, loss)),
-                                  loss_rise_at_ends=float(0.5 * (loss[0] + loss[-1]) - loss.min()),
-                                  mean_abs_grad=float(np.mean(np.abs(grad)))))
-    write_result_csv(RESULTS / f"landscapes{suffix}.csv", table, list(table[0]), commands)
-    plot(docs, RESULTS / f"landscapes{suffix}.png")
+        for mode in doc["modes"]:
+            fixed, seconds = doc["fixed_point"][mode], doc["timings_s"][f"{mode}_s"]
+            common = dict(frame=frame, mode=mode, fixed_point_cm=fixed["error_cm"], fixed_point_deg=fixed["error_deg"],
+                          seconds=seconds)
+            for axis, entry in doc["axes"].items():
+                table.append(dict(common, where=axis, unit=entry["unit"], basin=entry[mode]["basin"],
+                                  basin_fixed=entry[mode]["basin_fixed"], area="", area_fixed=""))
+            plane = doc["grid2d"][mode]
+            table.append(dict(common, where=" x ".join(doc["grid2d"]["axes"]), unit="fraction of the extent",
+                              basin=plane["basin"], basin_fixed=plane["basin_fixed"], area=plane["area"],
+                              area_fixed=plane["area_fixed"]))
+    columns = ["frame", "mode", "where", "unit", "basin", "basin_fixed", "area", "area_fixed", "fixed_point_cm",
+               "fixed_point_deg", "seconds"]
+    rounded = [{k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()} for row in table]
+    name = f"landscapes_{args.sequence}{suffix}"
+    write_result_csv(RESULTS / f"{name}.csv", rounded, columns, commands)
+    plot(table, RESULTS / f"{name}.png", args.sequence)
 
 
-def plot(docs: dict, path: Path) -> None:
+def plot(table: list[dict], path: Path, sequence: str) -> None:
+    """basin_fixed per mode (bars) for each axis and the plane (panels), one bar group per frame."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    axes = list(next(iter(docs.values()))["axes"])
-    fig = Figure(figsize=(4 * len(axes), 3.4), layout="constrained")
+    places = list(dict.fromkeys(r["where"] for r in table))
+    modes = list(dict.fromkeys(r["mode"] for r in table))
+    frames = list(dict.fromkeys(r["frame"] for r in table))
+    fig = Figure(figsize=(4.2 * len(places), 3.4), layout="constrained")
     FigureCanvasAgg(fig)
-    for j, axis in enumerate(axes):
-        ax = fig.add_subplot(1, len(axes), j + 1)
-        for frame, doc in docs.items():
-            entry = doc["axes"][axis]
-            for mode, style in (("off", "-"), ("paper", "--")):
-                loss = np.asarray(entry[mode]["loss"])
-                ax.plot(entry["offsets"], loss / loss.min(), style, linewidth=1,
-                        label=f"frame {frame} {mode} (basin {entry[mode]['basin']:g})")
-        ax.set_xlabel(f"{axis} ({docs[next(iter(docs))]['axes'][axis]['unit']})")
-        ax.set_ylabel("tracking loss / its minimum")
-        ax.grid(True, linewidth=0.3)
-        ax.legend(fontsize=6)
+    width = 0.8 / len(modes)
+    for j, place in enumerate(places):
+        ax = fig.add_subplot(1, len(places), j + 1)
+        for k, mode in enumerate(modes):
+            values = [next(r["basin_fixed"] for r in table if (r["where"], r["mode"], r["frame"]) == (place, mode, f))
+                      for f in frames]
+            ax.bar(np.arange(len(frames)) + (k - (len(modes) - 1) / 2) * width, values, width, label=mode)
+        unit = next(r["unit"] for r in table if r["where"] == place)
+        ax.set_xticks(np.arange(len(frames)), [f"frame {f}" for f in frames], fontsize=7)
+        ax.set_ylabel(f"basin to the fixed point ({unit})", fontsize=8)
+        ax.set_title(f"{sequence}: {place}", fontsize=9)
+        ax.grid(True, axis="y", linewidth=0.3)
+        ax.legend(fontsize=7)
     fig.savefig(path, dpi=110)
     print(f"wrote {path}")
 
