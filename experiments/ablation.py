@@ -3,9 +3,12 @@ smoothing only, both; a fixed K (beta = 0: K = K0 everywhere) vs the adaptive K;
 hybrid compositing; against ``off``, over several seeds, on the noisy synthetic room and the 7-Scenes sample, with
 map noise (CB-KNN's use case: tracking against noisy Gaussians).
 
-    python experiments/ablation.py --work /tmp/gsjax_ablation --seeds 2 --frames 18 --map-noise-cm 1
+    python experiments/ablation.py --work /work/gsjax_study/ablation --seeds 3 --frames 60 --map-noise-cm 1
 
-Writes ``experiments/results/ablation.csv`` and ``ablation.png``.
+Map noise is fresh per frame, or with ``--persistent`` added once to the stored map at frame ``frames // 6``.
+Writes ``experiments/results/ablation_80x60.csv`` (mean and std over the seeds, n), ``ablation_80x60_paired.csv``
+(each variant - off per seed, mean and 95 % bootstrap interval) and ``ablation_80x60.png``. (The 40x30 study of
+2026-12-01 wrote ``ablation.csv``.)
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from studies import RESULTS, SEQUENCES, mean_std, sweep, write_result_csv
+from studies import AVAILABLE_FRAMES, RESULTS, SEQUENCES, mean_std, paired_rows, sweep, write_result_csv
 
 # variant -> (CB-KNN mode, extra overrides); "adaptive" rows also sweep beta = 0 (fixed K) in the same program.
 VARIANTS = {
@@ -28,17 +31,21 @@ VARIANTS = {
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, required=True)
-    parser.add_argument("--seeds", type=int, default=2)
-    parser.add_argument("--frames", type=int, default=18)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--map-noise-cm", default="1")
+    parser.add_argument("--persistent", action="store_true", help="the map noise persists in the stored map")
     parser.add_argument("--sequences", default=",".join(SEQUENCES))
     args = parser.parse_args()
     commands: list[str] = []
     rows = []
     for name in args.sequences.split(","):
+        frames = min(args.frames, AVAILABLE_FRAMES[name] or args.frames)
+        noise = (["--noise.persistent_means_cm", args.map_noise_cm, "--noise.persistent_frame",
+                  str(max(1, frames // 6))] if args.persistent else ["--noise.map_means_cm", args.map_noise_cm])
         for variant, (mode, extra) in VARIANTS.items():
-            argv = [*SEQUENCES[name], "--max-frames", str(args.frames), "--seeds", str(args.seeds), "--cbknn", mode,
-                    "--noise.map_means_cm", args.map_noise_cm, *extra]
+            argv = [*SEQUENCES[name], "--max-frames", str(frames), "--seeds", str(args.seeds), "--cbknn", mode,
+                    *noise, *extra]
             if mode == "paper":  # adaptive K (the preset's beta) and a fixed K (beta = 0) in one program
                 argv += ["--grid", "cbknn.params.beta=0.3,0"]
             for r in sweep(args.work, f"{name}_{variant}", argv, commands):
@@ -51,9 +58,15 @@ def main() -> None:
         ate, ate_std, n = mean_std(r["ate_rmse_cm"] for r in group)
         psnr, psnr_std, _ = mean_std(r["psnr_db"] for r in group)
         table.append(dict(sequence=key[0], variant=key[1], ate_cm_mean=f"{ate:.4f}", ate_cm_std=f"{ate_std:.4f}",
-                          psnr_db_mean=f"{psnr:.3f}", psnr_db_std=f"{psnr_std:.3f}", seeds=n))
-    write_result_csv(RESULTS / "ablation.csv", table, list(table[0]), commands)
-    plot(table, RESULTS / "ablation.png")
+                          psnr_db_mean=f"{psnr:.3f}", psnr_db_std=f"{psnr_std:.3f}", n=n))
+    paired = []
+    for variant in dict.fromkeys(r["variant"] for r in rows if r["variant"] != "off"):
+        for row in paired_rows(rows, ["sequence"], "ate_rmse_cm", a="off", b=variant, label="variant"):
+            paired.append({"variant": variant, **{k: (f"{v:.4f}" if isinstance(v, float) else v)
+                                                  for k, v in row.items()}})
+    write_result_csv(RESULTS / "ablation_80x60.csv", table, list(table[0]), commands)
+    write_result_csv(RESULTS / "ablation_80x60_paired.csv", paired, list(paired[0]), commands)
+    plot(table, RESULTS / "ablation_80x60.png")
 
 
 def plot(table: list[dict], path: Path) -> None:

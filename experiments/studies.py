@@ -78,19 +78,22 @@ def mean_std(values) -> tuple[float, float, int]:
 
 
 def paired_rows(rows: list[dict], keys: list[str], metric: str = "ate_rmse_cm", a: str = "off",
-                b: str = "paper") -> list[dict]:
-    """Per group of ``keys``: the paired difference b - a of ``metric`` over the seeds the two modes share
-    (:func:`gsjax.eval.stats.paired_difference`, 95 % bootstrap interval), with n."""
+                b: str = "paper", label: str = "cbknn.mode") -> list[dict]:
+    """Per group of ``keys``: the paired difference b - a of ``metric`` between the rows whose ``label`` column is
+    ``b`` and ``a``, over the seeds both have (:func:`gsjax.eval.stats.paired_difference`, 95 % bootstrap
+    interval), with n."""
     from gsjax.eval.stats import paired_difference
 
     groups: dict = {}
     for row in rows:
         key = tuple(row[k] for k in keys)
         value = float(row[metric]) if row[metric] not in ("", None) else float("nan")
-        groups.setdefault(key, {}).setdefault(row["cbknn.mode"], {})[row["seed"]] = value
+        groups.setdefault(key, {}).setdefault(row[label], {})[row["seed"]] = value
     out = []
     for key, modes in groups.items():
-        seeds = sorted(set(modes.get(a, {})) & set(modes.get(b, {})), key=int)
+        if a not in modes or b not in modes:
+            continue
+        seeds = sorted(set(modes[a]) & set(modes[b]), key=int)
         found = paired_difference([modes[a][s] for s in seeds], [modes[b][s] for s in seeds])
         out.append({**dict(zip(keys, key)), "metric": metric, "n": found.n, f"{a}_mean": _mean(modes[a], seeds),
                     f"{b}_mean": _mean(modes[b], seeds), "difference": found.mean, "ci_low": found.low,
