@@ -79,7 +79,8 @@ def mean_std(values) -> tuple[float, float, int]:
 
 def paired_rows(rows: list[dict], keys: list[str], metric: str = "ate_rmse_cm", a: str = "off",
                 b: str = "paper", label: str = "cbknn.mode") -> list[dict]:
-    """Per group of ``keys``: the paired difference b - a of ``metric`` between the rows whose ``label`` column is
+    """Per group of ``keys``: the paired difference b - a (``difference``; ``a_mean``, ``b_mean`` the two means over
+    the shared seeds) of ``metric`` between the rows whose ``label`` column is
     ``b`` and ``a``, over the seeds both have (:func:`gsjax.eval.stats.paired_difference`, 95 % bootstrap
     interval), with n."""
     from gsjax.eval.stats import paired_difference
@@ -95,8 +96,8 @@ def paired_rows(rows: list[dict], keys: list[str], metric: str = "ate_rmse_cm", 
             continue
         seeds = sorted(set(modes[a]) & set(modes[b]), key=int)
         found = paired_difference([modes[a][s] for s in seeds], [modes[b][s] for s in seeds])
-        out.append({**dict(zip(keys, key)), "metric": metric, "n": found.n, f"{a}_mean": _mean(modes[a], seeds),
-                    f"{b}_mean": _mean(modes[b], seeds), "difference": found.mean, "ci_low": found.low,
+        out.append({**dict(zip(keys, key)), "metric": metric, "n": found.n, "a": a, "a_mean": _mean(modes[a], seeds),
+                    "b": b, "b_mean": _mean(modes[b], seeds), "difference": found.mean, "ci_low": found.low,
                     "ci_high": found.high, "excludes_zero": found.excludes_zero})
     return out
 
