@@ -43,7 +43,7 @@ def main() -> None:
     table = []
     ate, std, n = mean_std(r["ate_rmse_cm"] for r in off)
     table.append(dict(mode="off", alpha="", k0="", beta="", ate_cm_mean=f"{ate:.4f}", ate_cm_std=f"{std:.4f}", n=n,
-                      difference="", ci_low="", ci_high="", excludes_zero=""))
+                      difference="", ci_low="", ci_high="", t_low="", t_high="", excludes_zero=""))
     baseline = {r["seed"]: float(r["ate_rmse_cm"]) for r in off}
     keys = ("cbknn.params.alpha", "cbknn.params.k0", "cbknn.params.beta")
     for key in dict.fromkeys(tuple(r[k] for k in keys) for r in grid):
@@ -54,7 +54,8 @@ def main() -> None:
                                   [float(r["ate_rmse_cm"]) for r in group if r["seed"] in baseline])
         table.append(dict(mode="paper", alpha=key[0], k0=key[1], beta=key[2], ate_cm_mean=f"{ate:.4f}",
                           ate_cm_std=f"{std:.4f}", n=n, difference=f"{found.mean:.4f}", ci_low=f"{found.low:.4f}",
-                          ci_high=f"{found.high:.4f}", excludes_zero=found.excludes_zero))
+                          ci_high=f"{found.high:.4f}", t_low=f"{found.t_low:.4f}", t_high=f"{found.t_high:.4f}",
+                          excludes_zero=found.excludes_zero))
     write_result_csv(RESULTS / "cbknn_grid_80x60.csv", table, list(table[0]), commands)
     shutil.copyfile(args.work / f"{args.sequence}_grid" / "sweep.png", RESULTS / "cbknn_grid_80x60.png")
     print(f"wrote {RESULTS / 'cbknn_grid_80x60.png'}")

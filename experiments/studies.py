@@ -82,7 +82,7 @@ def paired_rows(rows: list[dict], keys: list[str], metric: str = "ate_rmse_cm", 
     """Per group of ``keys``: the paired difference b - a (``difference``; ``a_mean``, ``b_mean`` the two means over
     the shared seeds) of ``metric`` between the rows whose ``label`` column is
     ``b`` and ``a``, over the seeds both have (:func:`gsjax.eval.stats.paired_difference`, 95 % bootstrap
-    interval), with n."""
+    interval and Student's t interval), with n."""
     from gsjax.eval.stats import paired_difference
 
     groups: dict = {}
@@ -98,7 +98,8 @@ def paired_rows(rows: list[dict], keys: list[str], metric: str = "ate_rmse_cm", 
         found = paired_difference([modes[a][s] for s in seeds], [modes[b][s] for s in seeds])
         out.append({**dict(zip(keys, key)), "metric": metric, "n": found.n, "a": a, "a_mean": _mean(modes[a], seeds),
                     "b": b, "b_mean": _mean(modes[b], seeds), "difference": found.mean, "ci_low": found.low,
-                    "ci_high": found.high, "excludes_zero": found.excludes_zero})
+                    "ci_high": found.high, "t_low": found.t_low, "t_high": found.t_high,
+                    "excludes_zero": found.excludes_zero})
     return out
 
 

@@ -36,6 +36,15 @@ def test_the_interval_matches_the_normal_approximation_for_many_pairs():
     assert found.excludes_zero
 
 
+def test_the_t_interval_is_students():
+    difference = np.array([0.3, -0.1, 0.4, 0.2, 0.1])
+    found = paired_difference(np.zeros(5), difference)
+    half = 2.7764451051977987 * difference.std(ddof=1) / np.sqrt(5)  # t(0.975, 4)
+    assert (found.t_low, found.t_high) == pytest.approx((difference.mean() - half, difference.mean() + half))
+    # The bootstrap interval excludes zero here, the wider t interval does not: not counted as a difference.
+    assert found.low > 0 and found.t_low < 0 and not found.excludes_zero
+
+
 def test_pairs_matter_not_the_spread_between_seeds():
     # Seeds differ by far more than the conditions do, but b is a + 0.1 on every seed: the paired difference is
     # exactly 0.1 and excludes zero, although the two groups' ranges overlap.
