@@ -10,8 +10,9 @@ tracker is run from every grid point and counts as converged within 0.5 cm / 0.5
 and of its own fixed point (``basin_fixed``, where it ends when started at the reference: the basin without the
 map's bias). Writes ``experiments/results/landscapes_SEQUENCE.csv`` (per frame, mode and axis or plane: the basins,
 for the plane the normalised radius and the converged share, the fixed point's distance from the reference, the
-seconds per mode) and ``landscapes_SEQUENCE.png`` (basin_fixed per mode and frame). An existing landscape in
-``--work`` is reused.
+seconds per mode), ``landscapes_SEQUENCE_paired.csv`` (each mode - off over the frames: mean, bootstrap and t
+intervals) and ``landscapes_SEQUENCE.png`` (basin_fixed per mode and frame). An existing landscape in ``--work`` is
+reused.
 """
 
 from __future__ import annotations
@@ -71,7 +72,34 @@ def main() -> None:
     rounded = [{k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()} for row in table]
     name = f"landscapes_{args.sequence}{suffix}"
     write_result_csv(RESULTS / f"{name}.csv", rounded, columns, commands)
+    paired = paired_against_off(table)
+    if paired:
+        write_result_csv(RESULTS / f"{name}_paired.csv", paired, list(paired[0]), commands)
     plot(table, RESULTS / f"{name}.png", args.sequence)
+
+
+def paired_against_off(table: list[dict]) -> list[dict]:
+    """Each mode - off over the frames (the pairs), per axis or plane, for basin_fixed and (plane) area_fixed: the
+    mean difference with its bootstrap and t intervals (:func:`gsjax.eval.stats.paired_difference`)."""
+    from gsjax.eval.stats import paired_difference
+
+    out = []
+    for place in dict.fromkeys(r["where"] for r in table):
+        for column in ("basin_fixed", "area_fixed") if " x " in place else ("basin_fixed",):
+            values = {}
+            for r in table:
+                if r["where"] == place:
+                    values.setdefault(r["mode"], {})[r["frame"]] = float(r[column])
+            for mode in [m for m in values if m != "off" and "off" in values]:
+                frames = sorted(set(values["off"]) & set(values[mode]))
+                found = paired_difference([values["off"][f] for f in frames], [values[mode][f] for f in frames])
+                out.append(dict(where=place, metric=column, mode=mode, n=found.n,
+                                off_mean=f"{np.mean([values['off'][f] for f in frames]):.4f}",
+                                mode_mean=f"{np.mean([values[mode][f] for f in frames]):.4f}",
+                                difference=f"{found.mean:.4f}", ci_low=f"{found.low:.4f}",
+                                ci_high=f"{found.high:.4f}", t_low=f"{found.t_low:.4f}", t_high=f"{found.t_high:.4f}",
+                                excludes_zero=found.excludes_zero))
+    return out
 
 
 def plot(table: list[dict], path: Path, sequence: str) -> None:
