@@ -265,7 +265,8 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
             timings["first_chunk_s"].append(first)
             for state in final_states:  # this process's groups
                 used_devices |= {d.id for d in state.gaussians.means.devices()}
-            per_config = share_results(_per_config(groups_, members, parts, final_states, len(batch)))
+            per_config = share_results(_per_config(groups_, members, parts, final_states, len(batch)),
+                                       name=f"batch{number}")
             t0 = time.perf_counter()
             for i, point in enumerate(batch):
                 state, outputs = per_config[i]

@@ -86,12 +86,23 @@ def to_host(tree):
     return jax.tree_util.tree_map(get, tree)
 
 
-def share_results(per_config: list) -> list:
+# How long a process waits at a batch's end for the others to finish theirs (their shares of a batch may differ by
+# a whole config's run; hours on a CPU).
+RESULTS_BARRIER_MS = 12 * 3600 * 1000
+
+
+def share_results(per_config: list, name: str = "results") -> list:
     """Every process's entries of ``per_config`` (None where another process ran the config) on every process, as
-    numpy: each process pickles its own and all-gathers the bytes. One process: returned as given."""
+    numpy: each process pickles its own and all-gathers the bytes. One process: returned as given.
+
+    The processes first meet at a coordination-service barrier named ``name`` (unique per call): the collectives'
+    own rendezvous gives up after 30 s, less than one process can be ahead of another."""
     if jax.process_count() == 1:
         return per_config
+    from jax._src import distributed
     from jax.experimental import multihost_utils
+
+    distributed.global_state.client.wait_at_barrier(f"gsjax_share_{name}", RESULTS_BARRIER_MS)
 
     mine = {i: jax.device_get(entry) for i, entry in enumerate(per_config) if entry is not None}
     blob = np.frombuffer(pickle.dumps(mine), np.uint8)

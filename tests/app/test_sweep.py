@@ -8,6 +8,7 @@ import os
 import socket
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import jax
@@ -254,3 +255,34 @@ def test_a_sweep_over_two_processes_gives_the_rows_of_one_process_and_only_proce
             np.testing.assert_array_equal(mine, reference)
         else:
             np.testing.assert_allclose(mine, reference, atol=1e-3)
+
+
+@pytest.mark.slow
+def test_processes_that_finish_their_share_far_apart_still_exchange_results():
+    """share_results when one process arrives 40 s after the other: the collectives' own rendezvous gives up after
+    30 s (seen as 'Gloo context initialization failed: DEADLINE_EXCEEDED' on a loaded machine); the barrier before
+    them waits."""
+    code = textwrap.dedent("""
+        import sys, time, jax
+        from gsjax.app.sweep_devices import maybe_initialize_distributed, share_results
+        maybe_initialize_distributed()
+        me = jax.process_index()
+        if me == 1:
+            time.sleep(40)
+        shared = share_results([{"ran_by": 0} if me == 0 else None, {"ran_by": 1} if me == 1 else None], "late")
+        assert [entry["ran_by"] for entry in shared] == [0, 1], shared
+        print("shared", me)
+    """)
+    env = dict(os.environ, GSJAX_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{_free_port()}",
+               GSJAX_NUM_PROCESSES="2")
+    env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split()
+                                if "xla_force_host_platform_device_count" not in f)
+    procs = [subprocess.Popen([sys.executable, "-c", code], env=dict(env, GSJAX_PROCESS_ID=str(i)),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for i in range(2)]
+    try:
+        done = [p.communicate(timeout=300) for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+    for i, (p, (out, err)) in enumerate(zip(procs, done)):
+        assert p.returncode == 0 and f"shared {i}" in out, err[-2000:]
