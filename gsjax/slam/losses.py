@@ -62,14 +62,13 @@ def tracking_loss(
     with ``match_exposure`` the render's colour is first scaled by :func:`exposure_gain`. With ``blur_radius`` > 0
     the masked residuals are first filtered by :func:`gaussian_blur` (``blur_px``): render and frame blurred
     together."""
+    if blur_radius:
+        depth, color = _masked_residuals(view, color_gt, depth_gt, sil_threshold, normalized_depth, match_exposure,
+                                         blur_px, blur_radius)
+        return lambda_depth * jnp.sum(jnp.abs(depth)) + lambda_color * jnp.sum(jnp.abs(color))
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
     depth = rendered_depth(view, normalized_depth)
     color = _compared_color(view, color_gt, mask, match_exposure)
-    if blur_radius:
-        residual = jnp.concatenate([jnp.where(mask, depth - depth_gt, 0.0)[..., None],
-                                    jnp.where(mask[..., None], color - color_gt, 0.0)], axis=-1)
-        smoothed = jnp.abs(gaussian_blur(residual, blur_px, blur_radius))
-        return lambda_depth * jnp.sum(smoothed[..., 0]) + lambda_color * jnp.sum(smoothed[..., 1:])
     depth_term = jnp.sum(jnp.where(mask, jnp.abs(depth - depth_gt), 0.0))
     color_term = jnp.sum(jnp.where(mask[..., None], jnp.abs(color - color_gt), 0.0))
     return lambda_depth * depth_term + lambda_color * color_term
@@ -82,16 +81,23 @@ def tracking_residuals(
 ) -> jax.Array:
     """The same masked terms as a residual vector [H*W*4] for least squares (Gauss-Newton / LM), blurred as
     :func:`tracking_loss` blurs them."""
+    depth, color = _masked_residuals(view, color_gt, depth_gt, sil_threshold, normalized_depth, match_exposure,
+                                     blur_px, blur_radius)
+    depth, color = depth * jnp.sqrt(lambda_depth), color * jnp.sqrt(lambda_color)
+    return jnp.concatenate([depth.reshape(-1), color.reshape(-1)])
+
+
+def _masked_residuals(view, color_gt, depth_gt, sil_threshold, normalized_depth, match_exposure, blur_px,
+                      blur_radius) -> tuple[jax.Array, jax.Array]:
+    """(depth [H, W], colour [H, W, 3]) render - frame, zero outside :func:`tracking_mask`, then filtered by
+    :func:`gaussian_blur` when ``blur_radius`` > 0."""
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
-    rendered = rendered_depth(view, normalized_depth)
-    depth = jnp.where(mask, rendered - depth_gt, 0.0)
-    compared = _compared_color(view, color_gt, mask, match_exposure)
-    color = jnp.where(mask[..., None], compared - color_gt, 0.0)
+    depth = jnp.where(mask, rendered_depth(view, normalized_depth) - depth_gt, 0.0)
+    color = jnp.where(mask[..., None], _compared_color(view, color_gt, mask, match_exposure) - color_gt, 0.0)
     if blur_radius:
         depth = gaussian_blur(depth[..., None], blur_px, blur_radius)[..., 0]
         color = gaussian_blur(color, blur_px, blur_radius)
-    depth, color = depth * jnp.sqrt(lambda_depth), color * jnp.sqrt(lambda_color)
-    return jnp.concatenate([depth.reshape(-1), color.reshape(-1)])
+    return depth, color
 
 
 def mapping_loss(view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
