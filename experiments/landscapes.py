@@ -25,7 +25,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from studies import RESULTS, ROOT, SEQUENCES, write_result_csv
+from studies import RESULTS, ROOT, SEQUENCES, paired_rows, write_result_csv
 
 MODES = "off,paper,blur,pyramid"
 
@@ -79,27 +79,14 @@ def main() -> None:
 
 
 def paired_against_off(table: list[dict]) -> list[dict]:
-    """Each mode - off over the frames (the pairs), per axis or plane, for basin_fixed and (plane) area_fixed: the
-    mean difference with its bootstrap and t intervals (:func:`gsjax.eval.stats.paired_difference`)."""
-    from gsjax.eval.stats import paired_difference
-
+    """Each mode - off over the frames (the pairs), per axis or plane, for basin_fixed and (plane) area_fixed
+    (:func:`studies.paired_rows`)."""
     out = []
-    for place in dict.fromkeys(r["where"] for r in table):
-        for column in ("basin_fixed", "area_fixed") if " x " in place else ("basin_fixed",):
-            values = {}
-            for r in table:
-                if r["where"] == place:
-                    values.setdefault(r["mode"], {})[r["frame"]] = float(r[column])
-            for mode in [m for m in values if m != "off" and "off" in values]:
-                frames = sorted(set(values["off"]) & set(values[mode]))
-                found = paired_difference([values["off"][f] for f in frames], [values[mode][f] for f in frames])
-                out.append(dict(where=place, metric=column, mode=mode, n=found.n,
-                                off_mean=f"{np.mean([values['off'][f] for f in frames]):.4f}",
-                                mode_mean=f"{np.mean([values[mode][f] for f in frames]):.4f}",
-                                difference=f"{found.mean:.4f}", ci_low=f"{found.low:.4f}",
-                                ci_high=f"{found.high:.4f}", t_low=f"{found.t_low:.4f}", t_high=f"{found.t_high:.4f}",
-                                excludes_zero=found.excludes_zero))
-    return out
+    for metric in ("basin_fixed", "area_fixed"):
+        rows = [r for r in table if metric == "basin_fixed" or " x " in r["where"]]
+        for mode in dict.fromkeys(r["mode"] for r in rows if r["mode"] != "off"):
+            out += paired_rows(rows, ["where"], metric, a="off", b=mode, label="mode", pair="frame")
+    return [{k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in row.items()} for row in out]
 
 
 def plot(table: list[dict], path: Path, sequence: str) -> None:

@@ -78,18 +78,18 @@ def mean_std(values) -> tuple[float, float, int]:
 
 
 def paired_rows(rows: list[dict], keys: list[str], metric: str = "ate_rmse_cm", a: str = "off",
-                b: str = "paper", label: str = "cbknn.mode") -> list[dict]:
+                b: str = "paper", label: str = "cbknn.mode", pair: str = "seed") -> list[dict]:
     """Per group of ``keys``: the paired difference b - a (``difference``; ``a_mean``, ``b_mean`` the two means over
-    the shared seeds) of ``metric`` between the rows whose ``label`` column is
-    ``b`` and ``a``, over the seeds both have (:func:`gsjax.eval.stats.paired_difference`, 95 % bootstrap
-    interval and Student's t interval), with n."""
+    the shared pairs) of ``metric`` between the rows whose ``label`` column is ``b`` and ``a``, paired by the
+    ``pair`` column (the seed; a landscape's frame), over the pairs both have
+    (:func:`gsjax.eval.stats.paired_difference`, 95 % bootstrap interval and Student's t interval), with n."""
     from gsjax.eval.stats import paired_difference
 
     groups: dict = {}
     for row in rows:
         key = tuple(row[k] for k in keys)
         value = float(row[metric]) if row[metric] not in ("", None) else float("nan")
-        groups.setdefault(key, {}).setdefault(row[label], {})[row["seed"]] = value
+        groups.setdefault(key, {}).setdefault(row[label], {})[str(row[pair])] = value
     out = []
     for key, modes in groups.items():
         if a not in modes or b not in modes:
