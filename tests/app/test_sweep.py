@@ -214,6 +214,23 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _two_processes(argv, timeout: int):
+    """Python run with ``argv(i)`` as processes 0 and 1 of one jax.distributed job on this machine (coordinator on
+    127.0.0.1) -> (the Popen objects, their (stdout, stderr))."""
+    env = dict(os.environ, GSJAX_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{_free_port()}",
+               GSJAX_NUM_PROCESSES="2")
+    # The suite's own XLA flags stay (compiled as the one-process sweep was); a forced device count does not.
+    env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split()
+                                if "xla_force_host_platform_device_count" not in f)
+    procs = [subprocess.Popen([sys.executable, *argv(i)], env=dict(env, GSJAX_PROCESS_ID=str(i)),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for i in range(2)]
+    try:
+        return procs, [p.communicate(timeout=timeout) for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+
+
 @pytest.mark.parametrize("width", ["1", pytest.param("2", marks=pytest.mark.slow)])
 def test_a_sweep_over_two_processes_gives_the_rows_of_one_process_and_only_process_0_writes(
         width, sweep_dir, vmapped_dir, tmp_path):
@@ -221,22 +238,10 @@ def test_a_sweep_over_two_processes_gives_the_rows_of_one_process_and_only_proce
     collectives), one CPU device each. Width 1: each process runs the configs of its device, process 0 gathers them.
     Width 2: each vmapped pair is sharded over the two processes. Process 0 writes everything; process 1 is given its
     own --out, which must stay absent."""
-    env = dict(os.environ, GSJAX_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{_free_port()}",
-               GSJAX_NUM_PROCESSES="2")
-    # The suite's own XLA flags stay (compiled as the one-process sweep was); a forced device count does not.
-    env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split()
-                                if "xla_force_host_platform_device_count" not in f)
     code = "import sys; from gsjax.app.cli import main; sys.exit(main(sys.argv[1:]))"
     outs = [tmp_path / "p0", tmp_path / "p1"]
-    procs = [subprocess.Popen([sys.executable, "-c", code, "sweep", "--out", str(outs[i]), *TINY_RUN, *GRID,
-                               "--seeds", str(SEEDS), "--devices", "1", "--vmap-width", width],
-                              env=dict(env, GSJAX_PROCESS_ID=str(i)),
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for i in range(2)]
-    try:
-        done = [p.communicate(timeout=600) for p in procs]
-    finally:
-        for p in procs:
-            p.kill()
+    procs, done = _two_processes(lambda i: ["-c", code, "sweep", "--out", str(outs[i]), *TINY_RUN, *GRID, "--seeds",
+                                            str(SEEDS), "--devices", "1", "--vmap-width", width], timeout=600)
     for p, (_, err) in zip(procs, done):
         assert p.returncode == 0, err[-2000:]
     assert "on 2 device(s)" in done[0][0]
@@ -273,16 +278,6 @@ def test_processes_that_finish_their_share_far_apart_still_exchange_results():
         assert [entry["ran_by"] for entry in shared] == [0, 1], shared
         print("shared", me)
     """)
-    env = dict(os.environ, GSJAX_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{_free_port()}",
-               GSJAX_NUM_PROCESSES="2")
-    env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split()
-                                if "xla_force_host_platform_device_count" not in f)
-    procs = [subprocess.Popen([sys.executable, "-c", code], env=dict(env, GSJAX_PROCESS_ID=str(i)),
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for i in range(2)]
-    try:
-        done = [p.communicate(timeout=300) for p in procs]
-    finally:
-        for p in procs:
-            p.kill()
+    procs, done = _two_processes(lambda i: ["-c", code], timeout=300)
     for i, (p, (out, err)) in enumerate(zip(procs, done)):
         assert p.returncode == 0 and f"shared {i}" in out, err[-2000:]
