@@ -48,7 +48,7 @@ def main() -> None:
                     *noise, *extra]
             if mode == "paper":  # adaptive K (the preset's beta) and a fixed K (beta = 0) in one program
                 argv += ["--grid", "cbknn.params.beta=0.3,0"]
-            for r in sweep(args.work, f"{name}_{variant}", argv, commands):
+            for r in sweep(args.work, f"{name}_{variant}", argv, commands, keep="ablation_80x60"):
                 k = "fixed" if r.get("cbknn.params.beta") == "0" else "adaptive"
                 label = variant if mode == "off" else f"{variant}/{k}_K"
                 rows.append(dict(r, sequence=name, variant=label))

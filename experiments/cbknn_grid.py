@@ -22,6 +22,7 @@ from gsjax.eval.stats import paired_difference
 ALPHA = ("0.1", "0.2", "0.4")  # px at the 80 px working width (the preset's 0.2)
 K0 = ("4", "12")
 BETA = ("0", "1")
+KEEP = "cbknn_grid_80x60"
 
 
 def main() -> None:
@@ -35,11 +36,11 @@ def main() -> None:
     commands: list[str] = []
     base = [*SEQUENCES[args.sequence], "--max-frames", str(args.frames), "--seeds", str(args.seeds),
             "--noise.map_means_cm", args.map_noise_cm]
-    off = sweep(args.work, f"{args.sequence}_off", [*base, "--cbknn", "off"], commands)
+    off = sweep(args.work, f"{args.sequence}_off", [*base, "--cbknn", "off"], commands, keep=KEEP)
     grid = sweep(args.work, f"{args.sequence}_grid", [*base, "--cbknn", "paper", "--grid",
                                                       "cbknn.params.alpha=" + ",".join(ALPHA), "--grid",
                                                       "cbknn.params.k0=" + ",".join(K0), "--grid",
-                                                      "cbknn.params.beta=" + ",".join(BETA)], commands)
+                                                      "cbknn.params.beta=" + ",".join(BETA)], commands, keep=KEEP)
     table = []
     ate, std, n = mean_std(r["ate_rmse_cm"] for r in off)
     table.append(dict(mode="off", alpha="", k0="", beta="", ate_cm_mean=f"{ate:.4f}", ate_cm_std=f"{std:.4f}", n=n,
@@ -57,8 +58,10 @@ def main() -> None:
                           ci_high=f"{found.high:.4f}", t_low=f"{found.t_low:.4f}", t_high=f"{found.t_high:.4f}",
                           excludes_zero=found.excludes_zero))
     write_result_csv(RESULTS / "cbknn_grid_80x60.csv", table, list(table[0]), commands)
-    shutil.copyfile(args.work / f"{args.sequence}_grid" / "sweep.png", RESULTS / "cbknn_grid_80x60.png")
-    print(f"wrote {RESULTS / 'cbknn_grid_80x60.png'}")
+    figure = args.work / f"{args.sequence}_grid" / "sweep.png"
+    if figure.is_file():  # not when the rows came from the kept runs: the figure in RESULTS stays
+        shutil.copyfile(figure, RESULTS / "cbknn_grid_80x60.png")
+        print(f"wrote {RESULTS / 'cbknn_grid_80x60.png'}")
 
 
 if __name__ == "__main__":

@@ -14,19 +14,21 @@ run on the same seeds, so each seed is a pair):
 - depth noise: N(0, sigma) cm on every valid input depth pixel (``noise.depth_cm``);
 - stride: every s-th frame (``--stride``; not on the 4-frame Replica sample).
 
-A sweep already finished in ``--work`` is reused, so an interrupted study continues; ``--sequences`` and
-``--conditions`` select parts. Writes ``experiments/results/robustness_80x60.csv`` (mean and std over the seeds, n),
-``robustness_80x60_paired.csv`` (paper - off per seed: the mean difference and its 95 % bootstrap interval, whether
-it excludes zero) and ``robustness_80x60.png``.
+A sweep already finished in ``--work``, or kept in ``experiments/results/runs/robustness_80x60/``, is reused, so an
+interrupted study continues; ``--sequences`` and ``--conditions`` select parts, and the rows of the CSVs below that
+this run did not produce (and whose runs were not kept) stay as they were. Writes
+``experiments/results/robustness_80x60.csv`` (mean and std over the seeds, n), ``robustness_80x60_paired.csv``
+(paper - off per seed: the mean difference and its 95 % bootstrap interval, whether it excludes zero) and
+``robustness_80x60.png``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
+import studies
 from studies import AVAILABLE_FRAMES, RESULTS, SEQUENCES, mean_std, paired_rows, sweep, write_result_csv
 
 # condition -> (factor, sweep flags); levels come from the grid values.
@@ -35,6 +37,14 @@ PERSISTENT_NOISE_CM = ("1", "2")
 DEPTH_NOISE_CM = ("2",)
 STRIDES = (4,)
 CONDITIONS = ("map", "persistent", "depth", "stride")
+STUDY = "robustness_80x60"
+# a result row's factor -> the condition (sweep name suffix) it came from
+SWEEP_OF_FACTOR = {"clean": "map", "map_noise_cm": "map", "persistent_noise_cm": "persistent",
+                   "depth_noise_cm": "depth"}
+
+
+def sweep_name(row: dict) -> str:
+    return f"{row['sequence']}_{SWEEP_OF_FACTOR.get(row['factor'], row['factor'] + row['level'])}"
 
 
 def main() -> None:
@@ -46,7 +56,7 @@ def main() -> None:
     parser.add_argument("--conditions", default=",".join(CONDITIONS))
     args = parser.parse_args()
     commands: list[str] = []
-    rows, timings = [], []
+    rows = []
     conditions = args.conditions.split(",")
     for name in args.sequences.split(","):
         frames = min(args.frames, AVAILABLE_FRAMES[name] or args.frames)
@@ -54,10 +64,7 @@ def main() -> None:
                   "--grid", "cbknn.mode=off,paper"]
 
         def run(tag, extra):
-            found = sweep(args.work, f"{name}_{tag}", [*common, *extra], commands)
-            wall = json.loads((args.work / f"{name}_{tag}" / "sweep.json").read_text()).get("wall_s")
-            timings.append((f"{name}_{tag}", wall if wall is not None else float("nan")))
-            return found
+            return sweep(args.work, f"{name}_{tag}", [*common, *extra], commands, keep=STUDY)
 
         if "map" in conditions:
             for r in run("map", ["--grid", "noise.map_means_cm=" + ",".join(MAP_NOISE_CM)]):
@@ -91,9 +98,11 @@ def main() -> None:
     for metric in ("ate_rmse_cm", "psnr_db"):
         for row in paired_rows(rows, keys, metric):
             paired.append({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in row.items()})
-    commands += [f"wall time of {tag} (its sweep.json): {seconds:.0f} s" for tag, seconds in timings]
-    write_result_csv(RESULTS / "robustness_80x60.csv", table, list(table[0]), commands)
-    write_result_csv(RESULTS / "robustness_80x60_paired.csv", paired, list(paired[0]), commands)
+    earlier, old_table = studies.carried_over(RESULTS / f"{STUDY}.csv", [*keys, "mode"], table, sweep_name)
+    _, old_paired = studies.carried_over(RESULTS / f"{STUDY}_paired.csv", [*keys, "metric"], paired, sweep_name)
+    table, paired = old_table + table, old_paired + paired
+    write_result_csv(RESULTS / f"{STUDY}.csv", table, list(table[0]), earlier + commands)
+    write_result_csv(RESULTS / f"{STUDY}_paired.csv", paired, list(paired[0]), earlier + commands)
     plot(paired, RESULTS / "robustness_80x60.png")
 
 

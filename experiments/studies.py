@@ -2,13 +2,16 @@
 as a user would, and writing a result CSV whose header holds the exact commands.
 
 Each study runs its sweeps into ``--work DIR`` (outside git; a sweep already finished there is reused, so an
-interrupted study continues), then writes a small CSV and a figure under ``experiments/results/``.
+interrupted study continues), keeps each finished sweep's rows (a few KB) under ``experiments/results/runs/``, where
+they are reused when ``--work`` no longer holds that sweep (a later session, another machine), and writes a small CSV
+and a figure under ``experiments/results/``.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import shlex
 import subprocess
 import sys
@@ -18,8 +21,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
-SEVEN_SCENES = ROOT.parent / "shared" / "data" / "7scenes_redkitchen"
-REPLICA = ROOT.parent / "shared" / "data" / "replica_office0_mini" / "office0"
+RUNS = RESULTS / "runs"
+# resolved, so that a checkout whose ../shared is a link runs (and keeps) the same commands
+SEVEN_SCENES = (ROOT.parent / "shared" / "data" / "7scenes_redkitchen").resolve()
+REPLICA = (ROOT.parent / "shared" / "data" / "replica_office0_mini" / "office0").resolve()
 
 # name -> the gsjax flags that select it, at the cpu preset's own working size (about 80 px wide: the synthetic
 # 160x120 at downscale 2, 7-Scenes' 640x480 at 8, Replica's 1200x680 at 15, 80x45).
@@ -37,18 +42,62 @@ SEQUENCES_40 = {
 AVAILABLE_FRAMES = {"synthetic_noisy": None, "7scenes": 150, "replica": 4}
 
 
-def sweep(work: Path, name: str, argv: list[str], log: list[str]) -> list[dict]:
-    """Run ``gsjax sweep --out work/name argv`` unless it already finished there; its rows (strings)."""
+def sweep(work: Path, name: str, argv: list[str], log: list[str], keep: str | None = None) -> list[dict]:
+    """Run ``gsjax sweep --out work/name argv`` unless it already finished there; its rows (strings). Appends the
+    command and the sweep's wall time to ``log``.
+
+    With ``keep`` (the study's name), the finished sweep's rows are also kept as ``RUNS/keep/name.csv`` under its
+    command, and taken from there when ``work/name`` holds no finished sweep but the kept command is the same."""
     out = work / name
     command = [sys.executable, "-m", "gsjax", "sweep", "--out", str(out), "--no-progress", *argv]
-    log.append("gsjax " + shlex.join(command[3:]))
+    kept = RUNS / keep / f"{name}.csv" if keep else None
     if not (out / "sweep.csv").is_file():
+        found = _kept(kept, argv)
+        if found is not None:
+            wall, rows = found
+            log.append(f"gsjax {shlex.join(command[3:])}  (wall {wall} s; rows kept in "
+                       f"{kept.relative_to(ROOT).as_posix()})")
+            return rows
         if out.exists():
             command.append("--overwrite")  # an interrupted sweep: its partial outputs are replaced
-        print("running:", log[-1], flush=True)
+        print("running: gsjax", shlex.join(command[3:]), flush=True)
         subprocess.run(command, check=True, cwd=ROOT)
-    with open(out / "sweep.csv", newline="") as f:
-        return list(csv.DictReader(f))
+    wall = json.loads((out / "sweep.json").read_text()).get("wall_s")
+    wall = "?" if wall is None else f"{wall:.0f}"
+    log.append(f"gsjax {shlex.join(command[3:])}  (wall {wall} s)")
+    text = (out / "sweep.csv").read_text()
+    if kept is not None:
+        kept.parent.mkdir(parents=True, exist_ok=True)
+        kept.write_text(f"# argv: {shlex.join(argv)}\n# wall_s: {wall}\n{text}")
+    return list(csv.DictReader(io.StringIO(text)))
+
+
+def _kept(kept: Path | None, argv: list[str]) -> tuple[str, list[dict]] | None:
+    """(wall time, rows) of a kept sweep run with ``argv``; None when there is none."""
+    if kept is None or not kept.is_file():
+        return None
+    argv_line, wall_line, body = kept.read_text().split("\n", 2)
+    if argv_line != f"# argv: {shlex.join(argv)}":
+        return None  # kept from another command: run it again
+    return wall_line.removeprefix("# wall_s: "), list(csv.DictReader(io.StringIO(body)))
+
+
+EARLIER = "earlier, rows not kept: "
+
+
+def carried_over(path: Path, keys: list[str], fresh: list[dict], sweep_of) -> tuple[list[str], list[dict]]:
+    """What to keep of the result CSV ``path`` from an earlier run of the study whose sweeps are neither in ``--work``
+    nor kept (results older than ``RUNS``): its rows whose ``keys`` no row of ``fresh`` has, and the commands (to
+    log) of the sweeps they came from, ``sweep_of(row)`` naming a row's sweep."""
+    if not path.is_file():
+        return [], []
+    lines = path.read_text().splitlines()
+    done = {tuple(str(r[k]) for k in keys) for r in fresh}
+    rows = [r for r in csv.DictReader(line for line in lines if not line.startswith("#"))
+            if tuple(r[k] for k in keys) not in done]
+    names = {sweep_of(r) for r in rows}
+    commands = [line.removeprefix("# ran: ").removeprefix(EARLIER) for line in lines if line.startswith("# ran: ")]
+    return [EARLIER + c for c in commands if any(f"/{n} " in c or f" {n} " in c for n in names)], rows
 
 
 def write_result_csv(path: Path, rows: list[dict], columns: list[str], commands: list[str]) -> Path:
