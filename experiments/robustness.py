@@ -12,7 +12,12 @@ run on the same seeds, so each seed is a pair):
   (frame 10 of 60) and left there (``noise.persistent_means_cm``, ``noise.persistent_frame``): the paper's noisy
   Gaussian parameters;
 - depth noise: N(0, sigma) cm on every valid input depth pixel (``noise.depth_cm``);
-- stride: every s-th frame (``--stride``; not on the 4-frame Replica sample).
+- stride: every s-th frame (``--stride``; not on the 4-frame Replica sample);
+- alternatives: at that stride (fast motion, where a wider basin should pay), ``off`` tracking with the textbook
+  basin wideners instead of CB-KNN, paired with the stride sweep's ``off`` on the same seeds: ``blur`` (residuals
+  blurred by a 1.5 px Gaussian, :func:`gsjax.slam.presets.with_image_smoothing`) and ``pyramid`` (20 of the 30
+  strided iterations replaced by full ones on residuals blurred at 2 then 1 px, ``with_coarse_to_fine``), as in
+  ``experiments/landscapes.py``.
 
 A sweep already finished in ``--work``, or kept in ``experiments/results/runs/robustness_80x60/``, is reused, so an
 interrupted study continues; ``--sequences`` and ``--conditions`` select parts, and the rows of the CSVs below that
@@ -36,7 +41,13 @@ MAP_NOISE_CM = ("0", "1")
 PERSISTENT_NOISE_CM = ("1", "2")
 DEPTH_NOISE_CM = ("2",)
 STRIDES = (4,)
-CONDITIONS = ("map", "persistent", "depth", "stride")
+CONDITIONS = ("map", "persistent", "depth", "stride", "alternatives")
+# the cpu preset's flags for presets.with_image_smoothing and with_coarse_to_fine (its 30 strided iterations)
+ALTERNATIVES = {
+    "blur": ["--tracking.blur_radius_px", "6", "--tracking.blur_px", "1.5"],
+    "pyramid": ["--tracking.blur_radius_px", "6", "--tracking.coarse_iters", "20", "--tracking.coarse_levels", "2",
+                "--tracking.coarse_sigma_px", "1", "--tracking.strided_iters", "10"],
+}
 STUDY = "robustness_80x60"
 # a result row's factor -> the condition (sweep name suffix) it came from
 SWEEP_OF_FACTOR = {"clean": "map", "map_noise_cm": "map", "persistent_noise_cm": "persistent",
@@ -44,7 +55,9 @@ SWEEP_OF_FACTOR = {"clean": "map", "map_noise_cm": "map", "persistent_noise_cm":
 
 
 def sweep_name(row: dict) -> str:
-    return f"{row['sequence']}_{SWEEP_OF_FACTOR.get(row['factor'], row['factor'] + row['level'])}"
+    name = f"{row['sequence']}_{SWEEP_OF_FACTOR.get(row['factor'], row['factor'] + row['level'])}"
+    alternative = row.get("mode", row.get("b"))
+    return f"{name}_{alternative}" if alternative in ALTERNATIVES else name
 
 
 def main() -> None:
@@ -60,11 +73,11 @@ def main() -> None:
     conditions = args.conditions.split(",")
     for name in args.sequences.split(","):
         frames = min(args.frames, AVAILABLE_FRAMES[name] or args.frames)
-        common = [*SEQUENCES[name], "--max-frames", str(frames), "--seeds", str(args.seeds),
-                  "--grid", "cbknn.mode=off,paper"]
+        base = [*SEQUENCES[name], "--max-frames", str(frames), "--seeds", str(args.seeds)]
+        common = [*base, "--grid", "cbknn.mode=off,paper"]
 
-        def run(tag, extra):
-            return sweep(args.work, f"{name}_{tag}", [*common, *extra], commands, keep=STUDY)
+        def run(tag, extra, flags=common):
+            return sweep(args.work, f"{name}_{tag}", [*flags, *extra], commands, keep=STUDY)
 
         if "map" in conditions:
             for r in run("map", ["--grid", "noise.map_means_cm=" + ",".join(MAP_NOISE_CM)]):
@@ -84,6 +97,13 @@ def main() -> None:
             for stride in STRIDES:
                 for r in run(f"stride{stride}", ["--stride", str(stride)]):
                     rows.append(dict(r, sequence=name, factor="stride", level=str(stride)))
+        if "alternatives" in conditions and frames > 8:
+            stride = STRIDES[0]
+            for alternative, flags in ALTERNATIVES.items():
+                for r in run(f"stride{stride}_{alternative}", ["--stride", str(stride), "--cbknn", "off", *flags],
+                             base):
+                    rows.append(dict(r, sequence=name, factor="stride", level=str(stride),
+                                     **{"cbknn.mode": alternative}))
 
     keys = ["sequence", "factor", "level"]
     table = []
@@ -96,7 +116,7 @@ def main() -> None:
                           n=n))
     paired = []
     for metric in ("ate_rmse_cm", "psnr_db"):
-        for row in paired_rows(rows, keys, metric):
+        for row in [r for b in ("paper", *ALTERNATIVES) for r in paired_rows(rows, keys, metric, b=b)]:
             paired.append({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in row.items()})
     earlier, old_table = studies.carried_over(RESULTS / f"{STUDY}.csv", [*keys, "mode"], table, sweep_name)
     _, old_paired = studies.carried_over(RESULTS / f"{STUDY}_paired.csv", [*keys, "metric"], paired, sweep_name)
@@ -107,7 +127,7 @@ def main() -> None:
 
 
 def plot(paired: list[dict], path: Path) -> None:
-    """Paired differences paper - off (ATE, cm) with their 95 % intervals, a panel per sequence."""
+    """Paired differences paper (or an alternative) - off (ATE, cm) with their 95 % intervals, a panel per sequence."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -118,7 +138,7 @@ def plot(paired: list[dict], path: Path) -> None:
     for i, sequence in enumerate(sequences):
         ax = fig.add_subplot(len(sequences), 1, i + 1)
         mine = [r for r in ate if r["sequence"] == sequence]
-        labels = [f"{r['factor']} {r['level']} (n={r['n']})".replace("  ", " ") for r in mine]
+        labels = [f"{r['b']}: {r['factor']} {r['level']} (n={r['n']})".replace("  ", " ") for r in mine]
         y = np.array([float(r["difference"]) for r in mine])
         low = y - np.array([float(r["ci_low"]) for r in mine])
         high = np.array([float(r["ci_high"]) for r in mine]) - y
@@ -126,7 +146,7 @@ def plot(paired: list[dict], path: Path) -> None:
         ax.errorbar(x, y, yerr=[np.nan_to_num(low), np.nan_to_num(high)], fmt="o", capsize=3)
         ax.axhline(0.0, color="grey", linewidth=0.8)
         ax.set_xticks(x, labels, rotation=20, fontsize=7)
-        ax.set_ylabel("ATE paper - off (cm)")
+        ax.set_ylabel("ATE mode - off (cm)")
         ax.set_title(f"{sequence}: mean paired difference, 95 % bootstrap interval", fontsize=9)
         ax.grid(True, linewidth=0.3)
     fig.savefig(path, dpi=110)
