@@ -126,6 +126,9 @@ def main() -> None:
     plot(paired, RESULTS / "robustness_80x60.png")
 
 
+MODE_COLOURS = {"paper": "tab:orange", "blur": "tab:green", "pyramid": "tab:purple"}
+
+
 def plot(paired: list[dict], path: Path) -> None:
     """Paired differences paper (or an alternative) - off (ATE, cm) with their 95 % intervals, a panel per sequence."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -138,12 +141,17 @@ def plot(paired: list[dict], path: Path) -> None:
     for i, sequence in enumerate(sequences):
         ax = fig.add_subplot(len(sequences), 1, i + 1)
         mine = [r for r in ate if r["sequence"] == sequence]
-        labels = [f"{r['b']}: {r['factor']} {r['level']} (n={r['n']})".replace("  ", " ") for r in mine]
+        labels = [f"{r['factor']} {r['level']} (n={r['n']})".replace("  ", " ") for r in mine]
         y = np.array([float(r["difference"]) for r in mine])
         low = y - np.array([float(r["ci_low"]) for r in mine])
         high = np.array([float(r["ci_high"]) for r in mine]) - y
         x = np.arange(len(mine))
-        ax.errorbar(x, y, yerr=[np.nan_to_num(low), np.nan_to_num(high)], fmt="o", capsize=3)
+        for mode, colour in MODE_COLOURS.items():
+            at = np.array([r["b"] == mode for r in mine])
+            if at.any():
+                ax.errorbar(x[at], y[at], yerr=[np.nan_to_num(low[at]), np.nan_to_num(high[at])], fmt="o",
+                            capsize=3, color=colour, label=f"{mode} - off")
+        ax.legend(fontsize=7)
         ax.axhline(0.0, color="grey", linewidth=0.8)
         ax.set_xticks(x, labels, rotation=20, fontsize=7)
         ax.set_ylabel("ATE mode - off (cm)")
