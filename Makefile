@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo -n)
 APT    := DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get -y -q
 
-.PHONY: install chromium demo lint test test-slow bench clean
+.PHONY: install chromium demo lint test test-slow bench gpu-aot clean
 
 install: $(STAMP)
 
@@ -47,5 +47,16 @@ test-slow: install
 bench: install
 	$(BIN)/python experiments/bench_raster.py
 
+# The GPU path compiled for an H100/H200 on this machine, no GPU needed (experiments/gpu_aot_check.py): a venv of its
+# own with jax's CUDA 13 plugin (XLA's GPU compiler) and ptxas, at the jax version `make install` pins; nothing of it
+# reaches `make test` or CI.
+AOT_VENV := .venv-gpu-aot
+JAX_PIN  := $(shell sed -n 's/^jax==//p' constraints.txt)
+gpu-aot:
+	[ -f $(AOT_VENV)/.installed ] || { $(PYTHON) -m venv $(AOT_VENV) && $(AOT_VENV)/bin/pip install -q -c constraints.txt \
+	    -e . "jax-cuda13-plugin==$(JAX_PIN)" "jax-cuda13-pjrt==$(JAX_PIN)" "nvidia-cuda-nvcc>=13.0.48,<14" \
+	    && touch $(AOT_VENV)/.installed; }
+	$(AOT_VENV)/bin/python experiments/gpu_aot_check.py --out outputs/gpu_aot
+
 clean:
-	rm -rf $(VENV) outputs .pytest_cache
+	rm -rf $(VENV) $(AOT_VENV) outputs .pytest_cache

@@ -3,9 +3,10 @@
     python experiments/gpu_check.py OUT
 
 Reads ``OUT/steps.jsonl`` (status and seconds of each step), ``OUT/tests.jsonl`` (Pallas vs XLA differences from
-tests/raster/test_gpu.py), ``OUT/bench.json`` (gsjax bench) and ``OUT/run/metrics.json`` (the 40-frame run), and sets
-the issue's targets beside the figures: a tracking iteration at 1200x680 <= 3 ms, >= 5 frames/s at full resolution,
-Pallas >= 3x faster than XLA.
+tests/raster/test_gpu.py), ``OUT/bench.json`` (gsjax bench), ``OUT/run/metrics.json`` (the 40-frame run) and
+``OUT/aot/gpu_aot.json`` (the ahead-of-time compiled programs, run on the GPU), and sets the issue's targets beside
+the figures: a tracking iteration at 1200x680 <= 3 ms, >= 5 frames/s at full resolution, Pallas >= 3x faster than
+XLA.
 """
 
 from __future__ import annotations
@@ -52,6 +53,13 @@ def collect(out: Path) -> dict:
                                                     "warnings")},
             ate_rmse_c2w_cm=metrics.ate_cm, render=dataclasses.asdict(metrics.render))
         targets["frames_per_s_full_resolution"] = metrics.frames_per_s
+    aot = _json(out / "aot" / "gpu_aot.json")
+    if aot:  # per program: compiled for the described H100 here, loaded and run on this GPU, vs jax.jit
+        columns = ("name", "registers", "spill_stores", "shared_bytes", "occupancy")
+        programs = {name: dict(compile_s=r.get("compile_s"), error=r.get("error"), run=r.get("run"),
+                               kernels=[{k: kernel.get(k) for k in columns} for kernel in r.get("pallas_kernels", [])])
+                    for name, r in aot.get("programs", {}).items()}
+        result["aot"] = dict(error=aot.get("error"), programs=programs)
     result["targets"] = dict(targets, goals="track_iter_ms_1200x680 <= 3; frames/s >= 5 at full resolution; "
                                           "pallas speedup >= 3")
     return result

@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
-# The GPU check of the Pallas hot path, in one prepared script (< 8 min on a fresh GPU machine with JAX installed,
+# The GPU check of the Pallas hot path, in one prepared script (< 10 min on a fresh GPU machine with JAX installed,
 # no network; gsjax runs from the checkout via PYTHONPATH):
 #   1. the GPU tests (tests/raster/test_gpu.py): compiled Pallas vs XLA on a 640x480 map, values and gradients;
 #   2. gsjax bench, xla and pallas, at 640x480 and 1200x680;
 #   3. a 40-frame full-resolution (640x480) run of the 7-Scenes sample with the replica preset (40 tracking +
 #      60 mapping iterations per frame), on the default backend (pallas on a GPU);
+#   4. the ahead-of-time path (experiments/gpu_aot_check.py --run): the programs compiled for an H100 from its
+#      description, as on a machine without a GPU, then loaded onto this GPU, run, and compared with jax.jit;
 # and writes one JSON of results, $OUT/gpu_check.json (default OUT=outputs/gpu_check).
 #
 # Prepare on a machine with the data (no GPU needed), then carry the two ignored folders:
@@ -64,4 +66,5 @@ else
     echo '{"step": "run", "status": "skipped: no .gpu_data/7scenes (bash experiments/gpu_check.sh --prepare)"}' \
         >> "$OUT/steps.jsonl"
 fi
+step aot 120 "$PY" experiments/gpu_aot_check.py --out "$OUT/aot" --run
 "$PY" experiments/gpu_check.py "$OUT" && echo "total $((SECONDS - start)) s"

@@ -24,7 +24,6 @@ from __future__ import annotations
 import functools
 import math
 import warnings
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -43,18 +42,19 @@ def on_gpu() -> bool:
 
 
 def _call(kernel, *, grid, in_specs, out_specs, out_shape, num_warps: int):
-    params: dict[str, Any] = {}
-    interpret = not on_gpu()
-    if not interpret:
-        from jax.experimental.pallas import triton as pltriton
+    """``pl.pallas_call`` compiled by Triton where the program is lowered for a CUDA GPU and interpreted on any other
+    platform. The lowering platform chooses (``lax.platform_dependent``), not the default backend, so a program
+    compiled ahead of time for a GPU on a machine without one gets the Triton kernels (experiments/gpu_aot_check.py).
+    """
+    from jax.experimental.pallas import triton as pltriton
 
-        params = dict(compiler_params=pltriton.CompilerParams(num_warps=num_warps, num_stages=1))
+    common = dict(grid=grid, in_specs=in_specs, out_specs=out_specs, out_shape=out_shape)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*[Tt]riton.*deprecated.*")
-        return pl.pallas_call(
-            kernel, grid=grid, in_specs=in_specs, out_specs=out_specs, out_shape=out_shape, interpret=interpret,
-            **params,
-        )
+        compiled = pl.pallas_call(
+            kernel, compiler_params=pltriton.CompilerParams(num_warps=num_warps, num_stages=1), **common)
+        interpreted = pl.pallas_call(kernel, interpret=True, **common)
+    return lambda *args: jax.lax.platform_dependent(*args, cuda=compiled, default=interpreted)
 
 
 # --- selection walk ----------------------------------------------------------------------------------------------

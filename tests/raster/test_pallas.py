@@ -200,6 +200,20 @@ def test_cbknn_render_and_statistics_are_the_same_on_both_backends(name, case):
     assert_same_render(xla, pallas, f"{name} {case}")
 
 
+def test_the_lowering_platform_picks_triton_kernels_for_a_gpu_and_the_interpreter_elsewhere():
+    """Not the default backend: a GPU program compiled ahead of time on this CPU machine gets the Triton kernels."""
+    from jax import export
+
+    x = jnp.full((8, 256), 0.1, jnp.float32)
+    f = jax.jit(lambda a: kernels.composite_slots(a, a, a, a, a))
+    triton = export.DisabledSafetyCheck.custom_call("__gpu$xla.gpu.triton")
+    cuda = export.export(f, platforms=["cuda"], disabled_checks=[triton])(x).mlir_module()
+    cpu = export.export(f, platforms=["cpu"])(x).mlir_module()
+    assert cuda.count("@__gpu$xla.gpu.triton") == 1 and 'name = "_composite_kernel"' in cuda
+    assert "__gpu$xla.gpu.triton" not in cpu and "custom_call" not in cpu
+    np.testing.assert_allclose(f(x)[6], 0.9**8, rtol=1e-6)  # interpreted here: the transmittance after 8 slots
+
+
 def test_auto_backend_is_xla_without_a_gpu_and_a_bad_backend_is_named():
     assert not kernels.on_gpu()
     assert not RasterSettings().uses_pallas and RasterSettings(backend="pallas").uses_pallas

@@ -1,0 +1,352 @@
+"""Compile gsjax's GPU path for an NVIDIA H100/H200 on a machine without a GPU (XLA's deviceless, ahead-of-time
+compilation) and report what the compilers say of every Pallas kernel.
+
+    make gpu-aot                                      # a venv with jax's CUDA plugin (.venv-gpu-aot), then this
+    python experiments/gpu_aot_check.py --out outputs/gpu_aot [--run]
+
+Programs, each lowered with ``backend="pallas"`` for a one-GPU topology described by a ``GpuTargetConfigProto``
+(:data:`H100`: an H100 SXM's figures; an H200 has the same SM 9.0, SM count and per-SM limits, more and faster memory)
+and compiled by XLA's GPU compiler (Triton for the Pallas kernels, then ptxas) on this CPU:
+
+- ``render_fwd_bwd_640x480``: a render and its gradient w.r.t. every Gaussian field and the pose (as mapping and the
+  benchmark differentiate);
+- ``track_iteration_1200x680``: one tracking iteration of the ``replica`` preset in ``paper`` mode (the loss and its
+  gradient w.r.t. the pose tangent; the canonical and the CB-KNN render, selected by a traced keyframe flag);
+- ``map_iteration_1200x680``: one mapping iteration's loss and gradient w.r.t. the Gaussian parameters.
+
+Per program (``OUT/gpu_aot.json``): compile seconds, XLA's memory estimate (arguments, outputs, temporaries), the
+compiler's warnings, the GPU kernels it launches, and for each Pallas kernel its grid, threads and shared memory per
+block (XLA's thunk sequence), its PTX size and ``ptxas -v``'s registers per thread, spills and stack frame, and the
+theoretical occupancy these allow on an SM 9.0 GPU. The executables are serialized to ``OUT/<program>.xla`` and the
+Pallas kernels' PTX kept in ``OUT/ptx/``.
+
+``--run`` (on a GPU): each serialized executable is loaded back onto the device and run on the benchmark's room map,
+and its outputs are compared with ``jax.jit`` of the same function on that device: the ahead-of-time path and the
+usual one, checked as one (``experiments/gpu_check.sh`` does this).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import json
+import math
+import os
+import pickle
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+# An SM 9.0 GPU with 132 SMs (H100 SXM, H200): the limits the compiler plans with. Runtime 13.0: the CUDA plugin's.
+H100 = """
+gpu_device_info {
+  threads_per_block_limit: 1024
+  threads_per_warp: 32
+  shared_memory_per_block: 49152
+  shared_memory_per_core: 233472
+  threads_per_core_limit: 2048
+  core_count: 132
+  fpus_per_core: 128
+  block_dim_limit_x: 2147483647
+  block_dim_limit_y: 65535
+  block_dim_limit_z: 65535
+  memory_bandwidth: 3352320000000
+  l2_cache_size: 52428800
+  clock_rate_ghz: 1.98
+  device_memory_size: 84929347584
+  shared_memory_per_block_optin: 232448
+  cuda_compute_capability { major: 9 minor: 0 }
+  registers_per_core_limit: 65536
+  registers_per_block_limit: 65536
+}
+runtime_version { major: 13 minor: 0 patch: 0 }
+platform_name: "CUDA"
+dnn_version_info { major: 9 minor: 8 }
+device_description_str: "NVIDIA H100 80GB HBM3"
+"""
+SM90 = dict(registers=65536, threads=2048, blocks=32, shared_bytes=233472, register_unit=256)
+
+THUNK = re.compile(r"kCustomKernel\s+\[[^\]]*\]\s+(?P<name>\S+) grid: \[(?P<grid>[\d, ]+)\] "
+                   r"threads: \[(?P<threads>[\d, ]+)\]\s+shared_memory: (?P<shared>\d+) bytes")
+PTXAS_FUNCTION = re.compile(r"Compiling entry function '(?P<name>[^']+)'")
+PTXAS_FRAME = re.compile(r"(?P<stack>\d+) bytes stack frame, (?P<spill_stores>\d+) bytes spill stores, "
+                         r"(?P<spill_loads>\d+) bytes spill loads")
+PTXAS_USED = re.compile(r"Used (?P<registers>\d+) registers(?:, used (?P<barriers>\d+) barriers)?"
+                        r"(?:, (?P<smem>\d+) bytes smem)?")
+
+
+def parse_thunks(text: str) -> list[dict]:
+    """The GPU kernels of XLA's thunk sequence dump: name, grid, threads per block, shared memory per block (bytes)."""
+    kernels = []
+    for m in THUNK.finditer(text):
+        grid = [int(x) for x in m["grid"].split(",")]
+        threads = [int(x) for x in m["threads"].split(",")]
+        kernels.append(dict(name=m["name"], grid=grid, threads=math.prod(threads), shared_bytes=int(m["shared"])))
+    return kernels
+
+
+def parse_ptxas(text: str) -> dict[str, dict]:
+    """``ptxas -v``'s report per entry function: registers per thread, barriers, static shared memory, stack frame
+    and spill bytes."""
+    found: dict[str, dict] = {}
+    name = None
+    for line in text.splitlines():
+        if m := PTXAS_FUNCTION.search(line):
+            name = m["name"]
+            found[name] = {}
+        elif name and (m := PTXAS_FRAME.search(line)):
+            found[name].update({k: int(v) for k, v in m.groupdict().items()})
+        elif name and (m := PTXAS_USED.search(line)):
+            found[name].update({k: int(v) for k, v in m.groupdict().items() if v is not None})
+    return found
+
+
+def occupancy(threads: int, registers: int, shared_bytes: int, sm: dict = SM90) -> dict:
+    """Theoretical occupancy of a kernel on one SM: resident blocks per SM under each limit (threads, registers
+    allocated per warp in units of ``register_unit``, shared memory, blocks), the binding one, and the resident
+    warps as a share of the SM's maximum."""
+    warps = math.ceil(threads / 32)
+    per_warp = math.ceil(registers * 32 / sm["register_unit"]) * sm["register_unit"]
+    limits = dict(threads=sm["threads"] // (warps * 32), blocks=sm["blocks"],
+                  registers=(sm["registers"] // per_warp) // warps if per_warp else sm["blocks"],
+                  shared_memory=sm["shared_bytes"] // shared_bytes if shared_bytes else sm["blocks"])
+    blocks = min(limits.values())
+    return dict(blocks_per_sm=blocks, limited_by=min(limits, key=limits.get),
+                occupancy=blocks * warps * 32 / sm["threads"])
+
+
+def ptx_entries(dump: Path, module: str) -> dict[str, Path]:
+    """The PTX file of every entry function of ``module`` in an XLA dump folder."""
+    entries = {}
+    for path in sorted(dump.glob(f"module_*.{module}.*.ptx")):
+        for m in re.finditer(r"\.entry (\w+)\(", path.read_text()):
+            entries[m[1]] = path
+    return entries
+
+
+def kernel_report(dump: Path, module: str, names: set[str], ptxas: str | None) -> list[dict]:
+    """Per Pallas kernel (by function name; XLA numbers repeated launches ``name__1``, ...) of ``module``: its launch
+    figures, PTX size and ptxas's resources, one row per distinct compiled kernel with the number of launches."""
+    thunks = [k for path in dump.glob(f"module_*.{module}.thunk_sequence.txt")
+              for k in parse_thunks(path.read_text())]
+    ptx = ptx_entries(dump, module)
+    rows: dict[tuple, dict] = {}
+    for thunk in thunks:
+        kernel = re.sub(r"__\d+$", "", thunk["name"])
+        if kernel not in names:
+            continue
+        row = dict(thunk, name=kernel, ptx_bytes=ptx[thunk["name"]].stat().st_size if thunk["name"] in ptx else None)
+        if ptxas and thunk["name"] in ptx:
+            with tempfile.TemporaryDirectory() as tmp:
+                done = subprocess.run([ptxas, "-arch=sm_90a", "-v", str(ptx[thunk["name"]]), "-o",
+                                       str(Path(tmp) / "k.cubin")], capture_output=True, text=True)
+            resources = parse_ptxas(done.stdout + done.stderr).get(thunk["name"], {})
+            row.update(resources, ptxas_status=done.returncode)
+            if "registers" in resources:
+                row.update(occupancy(thunk["threads"], resources["registers"],
+                                     thunk["shared_bytes"] + resources.get("smem", 0)))
+        key = tuple(json.dumps(v) for k, v in row.items())
+        rows.setdefault(key, dict(row, launches=0))["launches"] += 1
+    return list(rows.values())
+
+
+def find_ptxas() -> str | None:
+    """ptxas on the PATH, else the one of the ``nvidia-cuda-nvcc`` wheel (``make gpu-aot`` installs it)."""
+    if found := shutil.which("ptxas"):
+        return found
+    import importlib.util
+
+    spec = importlib.util.find_spec("nvidia")
+    for root in spec.submodule_search_locations if spec else []:
+        for path in sorted(Path(root).glob("*/bin/ptxas")):
+            return str(path)
+    return None
+
+
+@contextlib.contextmanager
+def captured_stderr(path: Path):
+    """Send this process's file descriptor 2 (where XLA's C++ logs go) to ``path`` while inside."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with open(path, "w") as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
+def programs():
+    """name -> (function, example arguments as numpy/jax arrays on the host): the three programs of the docstring."""
+    import jax
+    import jax.numpy as jnp
+
+    from gsjax.app.bench import bench_map, weighted_outputs
+    from gsjax.camera import se3_exp
+    from gsjax.gaussians import Gaussians
+    from gsjax.raster import render
+    from gsjax.slam.losses import mapping_loss
+    from gsjax.slam.presets import preset, with_cbknn_mode
+    from gsjax.slam.tracking import TrackingProblem, tracking_objective
+    from gsjax.slam.views import render_view
+
+    def config_for(width):
+        config = with_cbknn_mode(preset("replica", width), "paper")
+        return dataclasses.replace(config, raster=dataclasses.replace(config.raster, backend="pallas"))
+
+    def render_program():
+        g, w2c, intrinsics = bench_map(640, 480)
+        settings = config_for(640).raster
+
+        def render_fwd_bwd(fields, active, w2c, delta, weights):
+            def loss(fields, delta):
+                out = render(Gaussians(*fields, active), se3_exp(delta) @ w2c, intrinsics, settings)
+                return weighted_outputs(out, weights)
+            return jax.value_and_grad(loss, argnums=(0, 1))(fields, delta)
+
+        weights = jax.random.normal(jax.random.PRNGKey(0), (480, 640, 6))
+        fields = (g.means, g.log_scales, g.logit_opacities, g.rgb)
+        return render_fwd_bwd, (fields, g.active, w2c, jnp.zeros(6), weights)
+
+    def slam_programs():
+        g, w2c, intrinsics = bench_map(1200, 680)
+        config = config_for(1200)
+        canonical = dataclasses.replace(config.raster, backend="xla")
+        observed = jax.jit(lambda g, w2c: render(g, w2c, intrinsics, canonical))(g, w2c)
+        start = se3_exp(jnp.asarray([0.01, 0.0, 0.0, 0.0, 0.0087, 0.0], jnp.float32)) @ w2c
+
+        def track_iteration(g, color, depth, start, smooth, gamma, delta):
+            problem = TrackingProblem(g, color, depth, start, intrinsics, smooth, gamma)
+            return jax.value_and_grad(tracking_objective(problem, config).loss)(delta)
+
+        def map_iteration(params, active, w2c, color, depth, smooth, gamma):
+            def loss(params):
+                view = render_view(Gaussians(*params, active), w2c, intrinsics, config, smooth, gamma)
+                m = config.mapping
+                return mapping_loss(view, color, depth, m.lambda_color, m.lambda_depth, m.ssim_weight)
+            return jax.value_and_grad(loss)(params)
+
+        keyframe, gamma = jnp.bool_(True), jnp.float32(0.5)
+        params = (g.means, g.log_scales, g.logit_opacities, g.rgb)
+        return {
+            "track_iteration_1200x680": (track_iteration, (g, observed.color, observed.depth, start, keyframe, gamma,
+                                                           jnp.zeros(6))),
+            "map_iteration_1200x680": (map_iteration, (params, g.active, start, observed.color, observed.depth,
+                                                       keyframe, gamma)),
+        }
+
+    return {"render_fwd_bwd_640x480": render_program(), **slam_programs()}
+
+
+def compare(a, b) -> float:
+    """Largest absolute difference over the leaves of two pytrees of arrays, relative to the largest magnitude."""
+    import jax
+    import numpy as np
+
+    worst = 0.0
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        worst = max(worst, float(np.max(np.abs(x - y), initial=0.0) / max(np.max(np.abs(y), initial=0.0), 1e-12)))
+    return worst
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("outputs/gpu_aot"))
+    parser.add_argument("--programs", default="", help="comma-separated subset of the program names")
+    parser.add_argument("--keep-dump", action="store_true", help="keep XLA's whole dump (OUT/xla_dump, ~100 MB)")
+    parser.add_argument("--run", action="store_true",
+                        help="on a GPU: load each serialized executable and compare its outputs with jax.jit's")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    dump = args.out / "xla_dump"
+    shutil.rmtree(dump, ignore_errors=True)
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_dump_to={dump.resolve()}".strip()
+    if not args.run:
+        os.environ.setdefault("JAX_PLATFORMS", "cpu")  # nothing runs on a GPU: no driver needed
+
+    import jax
+    from jax.experimental import serialize_executable, topologies
+
+    from gsjax.raster import pallas
+
+    kernels = {name for name in dir(pallas) if name.endswith("_kernel")}
+    ptxas = find_ptxas()
+    result = dict(jax=jax.__version__, target=H100.strip(), ptxas=ptxas, programs={})
+    try:
+        topology = topologies.get_topology_desc(platform="cuda", target_config=H100, topology="1x1x1")
+    except Exception as error:  # no CUDA plugin: say which step cannot be done here, and why
+        result["error"] = f"get_topology_desc(platform='cuda'): {type(error).__name__}: {error}"
+        print(json.dumps(result, indent=1))
+        (args.out / "gpu_aot.json").write_text(json.dumps(result, indent=1))
+        return 1
+    mesh = topologies.make_mesh(topology, (1,), ("gpu",))
+    replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+    chosen = [p for p in args.programs.split(",") if p]
+    for name, (fn, example) in programs().items():
+        if chosen and name not in chosen:
+            continue
+        fn.__name__ = fn.__qualname__ = name  # the module's name in the dump: jit_<name>
+        abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=replicated), example)
+        report: dict = {}
+        log = args.out / f"{name}.log"
+        t0 = time.perf_counter()
+        try:
+            with captured_stderr(log):
+                compiled = jax.jit(fn).lower(*abstract).compile()
+        except Exception as error:
+            report["error"] = f"{type(error).__name__}: {str(error)[:2000]}"
+        report["compile_s"] = round(time.perf_counter() - t0, 2)
+        report["compiler_warnings"] = sorted({line.split("] ", 1)[-1].strip() for line in log.read_text().splitlines()
+                                              if line[:1] in "WE" and "] " in line})
+        if "error" not in report:
+            memory = compiled.memory_analysis()
+            report["memory_mib"] = {k: round(getattr(memory, f"{k}_size_in_bytes") / 2**20, 2)
+                                    for k in ("argument", "output", "temp", "alias")}
+            module = f"jit_{name}"
+            report["gpu_kernels"] = sum(len(parse_thunks(p.read_text()))
+                                        for p in dump.glob(f"module_*.{module}.thunk_sequence.txt"))
+            report["pallas_kernels"] = kernel_report(dump, module, kernels, ptxas)
+            (args.out / "ptx").mkdir(exist_ok=True)
+            for entry, path in ptx_entries(dump, module).items():
+                if re.sub(r"__\d+$", "", entry) in kernels:
+                    shutil.copyfile(path, args.out / "ptx" / f"{name}.{entry}.ptx")
+            payload = serialize_executable.serialize(compiled)
+            (args.out / f"{name}.xla").write_bytes(pickle.dumps(payload))
+            report["serialized_mib"] = round(len(payload[0]) / 2**20, 2)
+            if args.run:
+                report["run"] = run_on_device(fn, example, payload)
+        result["programs"][name] = report
+        print(name, json.dumps(report, indent=1), flush=True)
+    (args.out / "gpu_aot.json").write_text(json.dumps(result, indent=1))
+    if not args.keep_dump:
+        shutil.rmtree(dump, ignore_errors=True)
+    print(f"wrote {args.out / 'gpu_aot.json'} and the Pallas kernels' PTX in {args.out / 'ptx'}")
+    return 0 if all("error" not in r and "error" not in r.get("run", {}) for r in result["programs"].values()) else 1
+
+
+def run_on_device(fn, example, payload) -> dict:
+    """Load the serialized executable onto this machine's GPU, run it on ``example`` and compare with jax.jit."""
+    import jax
+    from jax.experimental import serialize_executable
+
+    try:
+        loaded = serialize_executable.deserialize_and_load(*payload, backend="cuda")
+        device = jax.devices("cuda")[0]
+        on_device = jax.device_put(example, device)
+        aot = jax.block_until_ready(loaded(*on_device))
+        jitted = jax.block_until_ready(jax.jit(fn)(*on_device))
+        return dict(max_relative_difference=compare(aot, jitted))
+    except Exception as error:
+        return dict(error=f"{type(error).__name__}: {str(error)[:2000]}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
