@@ -55,8 +55,7 @@ def sweep(work: Path, name: str, argv: list[str], log: list[str], keep: str | No
         found = _kept(kept, argv)
         if found is not None:
             wall, rows = found
-            log.append(f"gsjax {shlex.join(command[3:])}  (wall {wall} s; rows kept in "
-                       f"{kept.relative_to(ROOT).as_posix()})")
+            log.append(_logged(command, wall, kept))
             return rows
         if out.exists():
             command.append("--overwrite")  # an interrupted sweep: its partial outputs are replaced
@@ -64,12 +63,18 @@ def sweep(work: Path, name: str, argv: list[str], log: list[str], keep: str | No
         subprocess.run(command, check=True, cwd=ROOT)
     wall = json.loads((out / "sweep.json").read_text()).get("wall_s")
     wall = "?" if wall is None else f"{wall:.0f}"
-    log.append(f"gsjax {shlex.join(command[3:])}  (wall {wall} s)")
     text = (out / "sweep.csv").read_text()
     if kept is not None:
         kept.parent.mkdir(parents=True, exist_ok=True)
         kept.write_text(f"# argv: {shlex.join(argv)}\n# wall_s: {wall}\n{text}")
+    log.append(_logged(command, wall, kept))
     return list(csv.DictReader(io.StringIO(text)))
+
+
+def _logged(command: list[str], wall: str, kept: Path | None) -> str:
+    """A sweep's line in a result's header: its command, wall time and where its rows are kept."""
+    where = f"; rows kept in {kept.relative_to(ROOT).as_posix()}" if kept is not None else ""
+    return f"gsjax {shlex.join(command[3:])}  (wall {wall} s{where})"
 
 
 def _kept(kept: Path | None, argv: list[str]) -> tuple[str, list[dict]] | None:
@@ -83,6 +88,7 @@ def _kept(kept: Path | None, argv: list[str]) -> tuple[str, list[dict]] | None:
 
 
 EARLIER = "earlier, rows not kept: "
+EARLIER_KEPT = "earlier: "  # a sweep of an earlier run whose rows are kept in RUNS
 
 
 def carried_over(path: Path, keys: list[str], fresh: list[dict], sweep_of) -> tuple[list[str], list[dict]]:
@@ -96,8 +102,10 @@ def carried_over(path: Path, keys: list[str], fresh: list[dict], sweep_of) -> tu
     rows = [r for r in csv.DictReader(line for line in lines if not line.startswith("#"))
             if tuple(r[k] for k in keys) not in done]
     names = {sweep_of(r) for r in rows}
-    commands = [line.removeprefix("# ran: ").removeprefix(EARLIER) for line in lines if line.startswith("# ran: ")]
-    return [EARLIER + c for c in commands if any(f"/{n} " in c or f" {n} " in c for n in names)], rows
+    commands = [line.removeprefix("# ran: ").removeprefix(EARLIER).removeprefix(EARLIER_KEPT)
+                for line in lines if line.startswith("# ran: ")]
+    return [(EARLIER_KEPT if "rows kept in " in c else EARLIER) + c
+            for c in commands if any(f"/{n} " in c or f" {n} " in c for n in names)], rows
 
 
 def write_result_csv(path: Path, rows: list[dict], columns: list[str], commands: list[str]) -> Path:

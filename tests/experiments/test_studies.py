@@ -39,7 +39,7 @@ def test_a_kept_sweep_is_reused_when_the_work_folder_is_gone(tmp_path, runs):
     argv = ["--dataset", "synthetic", "--seeds", "1"]
     log: list[str] = []
     assert studies.sweep(tmp_path / "work", "a", argv, log, keep="study") == rows
-    assert log[-1].endswith("(wall 12 s)") and runs == []
+    assert log[-1].endswith("(wall 12 s; rows kept in results/runs/study/a.csv)") and runs == []
     (tmp_path / "work" / "a" / "sweep.csv").unlink()
     (tmp_path / "work" / "a" / "sweep.json").unlink()
 
@@ -62,15 +62,20 @@ def test_carried_over_keeps_the_rows_not_produced_again_and_their_commands(tmp_p
                       "# ran: gsjax sweep --out /w/seq_map --seeds 5\n"
                       "# ran: gsjax sweep --out /w/seq_depth --seeds 5\n"
                       "# ran: wall time of seq_map (its sweep.json): 20 s\n"
-                      "sequence,factor,mode,ate\nseq,map,off,1.0\nseq,depth,off,2.0\n")
+                      "# ran: gsjax sweep --out /w/seq_stride --seeds 5  (wall 9 s; rows kept in results/runs/s.csv)\n"
+                      "sequence,factor,mode,ate\nseq,map,off,1.0\nseq,depth,off,2.0\nseq,stride,off,3.0\n")
     fresh = [{"sequence": "seq", "factor": "depth", "mode": "off", "ate": "2.5"}]
     commands, rows = studies.carried_over(result, ["sequence", "factor", "mode"], fresh,
                                           lambda r: f"{r['sequence']}_{r['factor']}")
-    assert rows == [{"sequence": "seq", "factor": "map", "mode": "off", "ate": "1.0"}]
+    assert rows == [{"sequence": "seq", "factor": "map", "mode": "off", "ate": "1.0"},
+                    {"sequence": "seq", "factor": "stride", "mode": "off", "ate": "3.0"}]
     assert commands == [studies.EARLIER + "gsjax sweep --out /w/seq_map --seeds 5",
-                        studies.EARLIER + "wall time of seq_map (its sweep.json): 20 s"]
+                        studies.EARLIER + "wall time of seq_map (its sweep.json): 20 s",
+                        studies.EARLIER_KEPT + "gsjax sweep --out /w/seq_stride --seeds 5  (wall 9 s; rows kept in "
+                                               "results/runs/s.csv)"]
     # written back as "# ran:" lines and carried again, the marker is not repeated
-    result.write_text("".join(f"# ran: {c}\n" for c in commands) + "sequence,factor,mode,ate\nseq,map,off,1.0\n")
+    result.write_text("".join(f"# ran: {c}\n" for c in commands)
+                      + "sequence,factor,mode,ate\nseq,map,off,1.0\nseq,stride,off,3.0\n")
     again, _ = studies.carried_over(result, ["sequence", "factor", "mode"], fresh,
                                     lambda r: f"{r['sequence']}_{r['factor']}")
     assert again == commands
