@@ -36,14 +36,18 @@ def main() -> None:
     parser.add_argument("--map-noise-cm", default="1")
     parser.add_argument("--persistent", action="store_true", help="the map noise persists in the stored map")
     parser.add_argument("--sequences", default=",".join(SEQUENCES))
+    parser.add_argument("--variants", default=",".join(VARIANTS), help="a subset of " + ",".join(VARIANTS))
     args = parser.parse_args()
+    if unknown := set(args.variants.split(",")) - set(VARIANTS):
+        parser.error(f"--variants: unknown {', '.join(sorted(unknown))} (choose from {', '.join(VARIANTS)})")
+    variants = {name: VARIANTS[name] for name in args.variants.split(",")}
     commands: list[str] = []
     rows = []
     for name in args.sequences.split(","):
         frames = min(args.frames, AVAILABLE_FRAMES[name] or args.frames)
         noise = (["--noise.persistent_means_cm", args.map_noise_cm, "--noise.persistent_frame",
                   str(max(1, frames // 6))] if args.persistent else ["--noise.map_means_cm", args.map_noise_cm])
-        for variant, (mode, extra) in VARIANTS.items():
+        for variant, (mode, extra) in variants.items():
             argv = [*SEQUENCES[name], "--max-frames", str(frames), "--seeds", str(args.seeds), "--cbknn", mode,
                     *noise, *extra]
             if mode == "paper":  # adaptive K (the preset's beta) and a fixed K (beta = 0) in one program
