@@ -120,24 +120,28 @@ def occupancy(threads: int, registers: int, shared_bytes: int, sm: dict = SM90) 
                 occupancy=blocks * warps * 32 / sm["threads"])
 
 
-def ptx_entries(dump: Path, module: str) -> dict[str, Path]:
-    """The PTX file of every entry function of ``module`` in an XLA dump folder."""
-    entries = {}
+def kernel_name(entry: str) -> str:
+    """The function name of a kernel entry: XLA numbers the repeated ones ``name__1``, ``name__2``, ..."""
+    return re.sub(r"__\d+$", "", entry)
+
+
+def dumped(dump: Path, module: str) -> tuple[list[dict], dict[str, Path]]:
+    """What XLA's dump folder holds of ``module``: its GPU kernel launches (:func:`parse_thunks`) and the PTX file of
+    every entry function."""
+    thunks = [k for path in dump.glob(f"module_*.{module}.thunk_sequence.txt") for k in parse_thunks(path.read_text())]
+    ptx = {}
     for path in sorted(dump.glob(f"module_*.{module}.*.ptx")):
         for m in re.finditer(r"\.entry (\w+)\(", path.read_text()):
-            entries[m[1]] = path
-    return entries
+            ptx[m[1]] = path
+    return thunks, ptx
 
 
-def kernel_report(dump: Path, module: str, names: set[str], ptxas: str | None) -> list[dict]:
-    """Per Pallas kernel (by function name; XLA numbers repeated launches ``name__1``, ...) of ``module``: its launch
-    figures, PTX size and ptxas's resources, one row per distinct compiled kernel with the number of launches."""
-    thunks = [k for path in dump.glob(f"module_*.{module}.thunk_sequence.txt")
-              for k in parse_thunks(path.read_text())]
-    ptx = ptx_entries(dump, module)
+def kernel_report(thunks: list[dict], ptx: dict[str, Path], names: set[str], ptxas: str | None) -> list[dict]:
+    """Per kernel launch of a function in ``names``: its launch figures, PTX size and ptxas's resources, one row per
+    distinct compiled kernel with the number of launches."""
     rows: dict[tuple, dict] = {}
     for thunk in thunks:
-        kernel = re.sub(r"__\d+$", "", thunk["name"])
+        kernel = kernel_name(thunk["name"])
         if kernel not in names:
             continue
         row = dict(thunk, name=kernel, ptx_bytes=ptx[thunk["name"]].stat().st_size if thunk["name"] in ptx else None)
@@ -310,13 +314,12 @@ def main(argv: list[str] | None = None) -> int:
             memory = compiled.memory_analysis()
             report["memory_mib"] = {k: round(getattr(memory, f"{k}_size_in_bytes") / 2**20, 2)
                                     for k in ("argument", "output", "temp", "alias")}
-            module = f"jit_{name}"
-            report["gpu_kernels"] = sum(len(parse_thunks(p.read_text()))
-                                        for p in dump.glob(f"module_*.{module}.thunk_sequence.txt"))
-            report["pallas_kernels"] = kernel_report(dump, module, kernels, ptxas)
+            thunks, ptx = dumped(dump, f"jit_{name}")
+            report["gpu_kernels"] = len(thunks)
+            report["pallas_kernels"] = kernel_report(thunks, ptx, kernels, ptxas)
             (args.out / "ptx").mkdir(exist_ok=True)
-            for entry, path in ptx_entries(dump, module).items():
-                if re.sub(r"__\d+$", "", entry) in kernels:
+            for entry, path in ptx.items():
+                if kernel_name(entry) in kernels:
                     shutil.copyfile(path, args.out / "ptx" / f"{name}.{entry}.ptx")
             payload = serialize_executable.serialize(compiled)
             (args.out / f"{name}.xla").write_bytes(pickle.dumps(payload))

@@ -28,6 +28,7 @@ import warnings
 import jax
 import jax.numpy as jnp
 from jax.experimental import pallas as pl
+from jax.experimental.pallas import triton as pltriton
 
 from gsjax.raster.project import ALPHA_MIN, gaussian_alpha
 
@@ -46,8 +47,6 @@ def _call(kernel, *, grid, in_specs, out_specs, out_shape, num_warps: int):
     platform. The lowering platform chooses (``lax.platform_dependent``), not the default backend, so a program
     compiled ahead of time for a GPU on a machine without one gets the Triton kernels (experiments/gpu_aot_check.py).
     """
-    from jax.experimental.pallas import triton as pltriton
-
     common = dict(grid=grid, in_specs=in_specs, out_specs=out_specs, out_shape=out_shape)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*[Tt]riton.*deprecated.*")

@@ -68,7 +68,7 @@ def test_occupancy_takes_the_tightest_of_the_sm_limits(threads, registers, share
 def test_pallas_kernel_rows_are_grouped_by_kernel_with_their_launch_count(tmp_path):
     (tmp_path / "module_0001.jit_f.thunk_sequence.txt").write_text(THUNKS + THUNKS.splitlines()[1] + "\n")
     (tmp_path / "module_0001.jit_f.7.ptx").write_text(".visible .entry _walk_kernel(\n")  # 30 bytes
-    rows = aot.kernel_report(tmp_path, "jit_f", {"_walk_kernel", "_composite_kernel"}, ptxas=None)
+    rows = aot.kernel_report(*aot.dumped(tmp_path, "jit_f"), {"_walk_kernel", "_composite_kernel"}, ptxas=None)
     walk, composite = rows
     assert (walk["name"], walk["launches"], walk["ptx_bytes"]) == ("_walk_kernel", 2, 30)
     assert (composite["name"], composite["launches"], composite["ptx_bytes"]) == ("_composite_kernel", 1, None)
