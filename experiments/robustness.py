@@ -7,7 +7,8 @@ Conditions, each one `gsjax sweep` per sequence (``--grid cbknn.mode=off,paper``
 run on the same seeds, so each seed is a pair):
 
 - clean, and fresh map noise: N(0, sigma) cm on every mean of the map a frame's tracking renders, drawn afresh per
-  frame, the stored map untouched (``noise.map_means_cm``);
+  frame, the stored map untouched (``noise.map_means_cm``); ``map_strong`` (only when named in ``--conditions``)
+  the same at 2 and 3 cm;
 - persistent map noise: N(0, sigma) cm added once to every mean of the stored map as frame ``frames // 6`` starts
   (frame 10 of 60) and left there (``noise.persistent_means_cm``, ``noise.persistent_frame``): the paper's noisy
   Gaussian parameters;
@@ -38,10 +39,13 @@ from studies import AVAILABLE_FRAMES, RESULTS, SEQUENCES, mean_std, paired_rows,
 
 # condition -> (factor, sweep flags); levels come from the grid values.
 MAP_NOISE_CM = ("0", "1")
+STRONG_MAP_NOISE_CM = ("2", "3")
 PERSISTENT_NOISE_CM = ("1", "2")
 DEPTH_NOISE_CM = ("2",)
 STRIDES = (4,)
 CONDITIONS = ("map", "persistent", "depth", "stride", "alternatives")
+# run only when asked (``--conditions map_strong``): fresh map noise at the levels where CB-KNN's one win could grow
+OPTIONAL_CONDITIONS = ("map_strong",)
 # the cpu preset's flags for presets.with_image_smoothing and with_coarse_to_fine (its 30 strided iterations)
 ALTERNATIVES = {
     "blur": ["--tracking.blur_radius_px", "6", "--tracking.blur_px", "1.5"],
@@ -55,7 +59,10 @@ SWEEP_OF_FACTOR = {"clean": "map", "map_noise_cm": "map", "persistent_noise_cm":
 
 
 def sweep_name(row: dict) -> str:
-    name = f"{row['sequence']}_{SWEEP_OF_FACTOR.get(row['factor'], row['factor'] + row['level'])}"
+    condition = SWEEP_OF_FACTOR.get(row["factor"], row["factor"] + row["level"])
+    if row["factor"] == "map_noise_cm" and row["level"] in STRONG_MAP_NOISE_CM:
+        condition = "map_strong"
+    name = f"{row['sequence']}_{condition}"
     alternative = row.get("mode", row.get("b"))
     return f"{name}_{alternative}" if alternative in ALTERNATIVES else name
 
@@ -71,6 +78,10 @@ def main() -> None:
     commands: list[str] = []
     rows = []
     conditions = args.conditions.split(",")
+    unknown = sorted(set(conditions) - set(CONDITIONS) - set(OPTIONAL_CONDITIONS))
+    if unknown:
+        parser.error(f"unknown condition(s) {', '.join(unknown)}; choose from "
+                     f"{', '.join(CONDITIONS + OPTIONAL_CONDITIONS)}")
     for name in args.sequences.split(","):
         frames = min(args.frames, AVAILABLE_FRAMES[name] or args.frames)
         base = [*SEQUENCES[name], "--max-frames", str(frames), "--seeds", str(args.seeds)]
@@ -85,6 +96,9 @@ def main() -> None:
                 clean = float(level) == 0.0  # the baseline of every factor
                 rows.append(dict(r, sequence=name, factor="clean" if clean else "map_noise_cm",
                                  level="" if clean else level))
+        if "map_strong" in conditions:
+            for r in run("map_strong", ["--grid", "noise.map_means_cm=" + ",".join(STRONG_MAP_NOISE_CM)]):
+                rows.append(dict(r, sequence=name, factor="map_noise_cm", level=r["noise.map_means_cm"]))
         if "persistent" in conditions:
             at = str(max(1, frames // 6))
             for r in run("persistent", ["--grid", "noise.persistent_means_cm=" + ",".join(PERSISTENT_NOISE_CM),

@@ -80,3 +80,15 @@ def test_carried_over_keeps_the_rows_not_produced_again_and_their_commands(tmp_p
                                     lambda r: f"{r['sequence']}_{r['factor']}")
     assert again == commands
     assert studies.carried_over(tmp_path / "missing.csv", ["sequence"], fresh, str) == ([], [])
+
+
+def test_each_robustness_row_names_the_sweep_it_came_from():
+    import robustness
+
+    def name(factor, level, mode="paper"):
+        return robustness.sweep_name({"sequence": "s", "factor": factor, "level": level, "mode": mode})
+
+    assert name("clean", "") == name("map_noise_cm", "1") == "s_map"
+    assert name("map_noise_cm", "2") == name("map_noise_cm", "3") == "s_map_strong"
+    assert name("persistent_noise_cm", "2") == "s_persistent"
+    assert name("stride", "4") == "s_stride4" and name("stride", "4", mode="blur") == "s_stride4_blur"
