@@ -143,6 +143,15 @@ def main() -> None:
 MODE_COLOURS = {"paper": "tab:orange", "blur": "tab:green", "pyramid": "tab:purple"}
 
 
+FACTOR_ORDER = ("clean", "map_noise_cm", "persistent_noise_cm", "depth_noise_cm", "stride")
+
+
+def _plot_order(row: dict) -> tuple:
+    """Conditions in the study's order, levels ascending, ``paper`` before the alternatives."""
+    factor = FACTOR_ORDER.index(row["factor"]) if row["factor"] in FACTOR_ORDER else len(FACTOR_ORDER)
+    return factor, float(row["level"] or 0), list(MODE_COLOURS).index(row["b"]) if row["b"] in MODE_COLOURS else 0
+
+
 def plot(paired: list[dict], path: Path) -> None:
     """Paired differences paper (or an alternative) - off (ATE, cm) with their 95 % intervals, a panel per sequence."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -154,7 +163,7 @@ def plot(paired: list[dict], path: Path) -> None:
     FigureCanvasAgg(fig)
     for i, sequence in enumerate(sequences):
         ax = fig.add_subplot(len(sequences), 1, i + 1)
-        mine = [r for r in ate if r["sequence"] == sequence]
+        mine = sorted((r for r in ate if r["sequence"] == sequence), key=_plot_order)
         labels = [f"{r['factor']} {r['level']} (n={r['n']})".replace("  ", " ") for r in mine]
         y = np.array([float(r["difference"]) for r in mine])
         low = y - np.array([float(r["ci_low"]) for r in mine])
