@@ -4,7 +4,8 @@
     python experiments/cbknn_grid.py --work /work/gsjax_study/grid --seeds 3 --frames 60 --sequence 7scenes
 
 Writes ``experiments/results/cbknn_grid_80x60.csv`` (mean and std of the ATE over the seeds per grid point, n, and
-the ``off`` baseline; each point's paired difference from ``off`` per seed with its 95 % bootstrap interval) and
+the ``off`` baseline; each point's paired difference from ``off`` per seed with its 95 % bootstrap and t intervals;
+the mean render PSNR) and
 ``cbknn_grid_80x60.png`` (the sweep's own heat map: ATE over alpha x K0, a panel per beta). (The 40x30 study of
 2026-12-01 wrote ``cbknn_grid.csv``.)
 """
@@ -43,20 +44,23 @@ def main() -> None:
                                                       "cbknn.params.beta=" + ",".join(BETA)], commands, keep=KEEP)
     table = []
     ate, std, n = mean_std(r["ate_rmse_cm"] for r in off)
+    psnr, _, _ = mean_std(r["psnr_db"] for r in off)
     table.append(dict(mode="off", alpha="", k0="", beta="", ate_cm_mean=f"{ate:.4f}", ate_cm_std=f"{std:.4f}", n=n,
-                      difference="", ci_low="", ci_high="", t_low="", t_high="", excludes_zero=""))
+                      difference="", ci_low="", ci_high="", t_low="", t_high="", excludes_zero="",
+                      psnr_db_mean=f"{psnr:.3f}"))
     baseline = {r["seed"]: float(r["ate_rmse_cm"]) for r in off}
     keys = ("cbknn.params.alpha", "cbknn.params.k0", "cbknn.params.beta")
     for key in dict.fromkeys(tuple(r[k] for k in keys) for r in grid):
         group = [r for r in grid if tuple(r[k] for k in keys) == key]
         ate, std, n = mean_std(r["ate_rmse_cm"] for r in group)
+        psnr, _, _ = mean_std(r["psnr_db"] for r in group)
         seeds = [r["seed"] for r in group if r["seed"] in baseline]
         found = paired_difference([baseline[s] for s in seeds],
                                   [float(r["ate_rmse_cm"]) for r in group if r["seed"] in baseline])
         table.append(dict(mode="paper", alpha=key[0], k0=key[1], beta=key[2], ate_cm_mean=f"{ate:.4f}",
                           ate_cm_std=f"{std:.4f}", n=n, difference=f"{found.mean:.4f}", ci_low=f"{found.low:.4f}",
                           ci_high=f"{found.high:.4f}", t_low=f"{found.t_low:.4f}", t_high=f"{found.t_high:.4f}",
-                          excludes_zero=found.excludes_zero))
+                          excludes_zero=found.excludes_zero, psnr_db_mean=f"{psnr:.3f}"))
     write_result_csv(RESULTS / "cbknn_grid_80x60.csv", table, list(table[0]), commands)
     figure = args.work / f"{args.sequence}_grid" / "sweep.png"
     if figure.is_file():  # not when the rows came from the kept runs: the figure in RESULTS stays
