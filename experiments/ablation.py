@@ -7,8 +7,9 @@ map noise (CB-KNN's use case: tracking against noisy Gaussians).
 
 Map noise is fresh per frame, or with ``--persistent`` added once to the stored map at frame ``frames // 6``.
 Writes ``experiments/results/ablation_80x60.csv`` (mean and std over the seeds, n), ``ablation_80x60_paired.csv``
-(each variant - off per seed, mean and 95 % bootstrap interval) and ``ablation_80x60.png``. (The 40x30 study of
-2026-12-01 wrote ``ablation.csv``.)
+(each variant - off per seed, mean and 95 % bootstrap interval) and ``ablation_80x60.png``; with ``--persistent``
+``ablation_80x60_persistent.*`` instead, its sweeps kept apart. (The 40x30 study of 2026-12-01 wrote
+``ablation.csv``.)
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ def main() -> None:
     if unknown := set(args.variants.split(",")) - set(VARIANTS):
         parser.error(f"--variants: unknown {', '.join(sorted(unknown))} (choose from {', '.join(VARIANTS)})")
     variants = {name: VARIANTS[name] for name in args.variants.split(",")}
+    study = "ablation_80x60_persistent" if args.persistent else "ablation_80x60"
     commands: list[str] = []
     rows = []
     for name in args.sequences.split(","):
@@ -52,7 +54,8 @@ def main() -> None:
                     *noise, *extra]
             if mode == "paper":  # adaptive K (the preset's beta) and a fixed K (beta = 0) in one program
                 argv += ["--grid", "cbknn.params.beta=0.3,0"]
-            for r in sweep(args.work, f"{name}_{variant}", argv, commands, keep="ablation_80x60"):
+            tag = f"{name}_{variant}" + ("_persistent" if args.persistent else "")
+            for r in sweep(args.work, tag, argv, commands, keep=study):
                 k = "fixed" if r.get("cbknn.params.beta") == "0" else "adaptive"
                 label = variant if mode == "off" else f"{variant}/{k}_K"
                 rows.append(dict(r, sequence=name, variant=label))
@@ -68,9 +71,9 @@ def main() -> None:
         for row in paired_rows(rows, ["sequence"], "ate_rmse_cm", a="off", b=variant, label="variant"):
             paired.append({"variant": variant, **{k: (f"{v:.4f}" if isinstance(v, float) else v)
                                                   for k, v in row.items()}})
-    write_result_csv(RESULTS / "ablation_80x60.csv", table, list(table[0]), commands)
-    write_result_csv(RESULTS / "ablation_80x60_paired.csv", paired, list(paired[0]), commands)
-    plot(table, RESULTS / "ablation_80x60.png")
+    write_result_csv(RESULTS / f"{study}.csv", table, list(table[0]), commands)
+    write_result_csv(RESULTS / f"{study}_paired.csv", paired, list(paired[0]), commands)
+    plot(table, RESULTS / f"{study}.png")
 
 
 def plot(table: list[dict], path: Path) -> None:
