@@ -5,15 +5,13 @@
 
 Writes ``experiments/results/cbknn_grid_80x60.csv`` (mean and std of the ATE over the seeds per grid point, n, and
 the ``off`` baseline; each point's paired difference from ``off`` per seed with its 95 % bootstrap and t intervals;
-the mean render PSNR) and
-``cbknn_grid_80x60.png`` (the sweep's own heat map: ATE over alpha x K0, a panel per beta). (The 40x30 study of
-2026-12-01 wrote ``cbknn_grid.csv``.)
+the mean render PSNR) and ``cbknn_grid_80x60.png`` (paper - off over alpha x K0, a panel per beta, the points whose
+intervals exclude zero starred). (The 40x30 study of 2026-12-01 wrote ``cbknn_grid.csv``.)
 """
 
 from __future__ import annotations
 
 import argparse
-import shutil
 from pathlib import Path
 
 from studies import RESULTS, SEQUENCES, mean_std, sweep, write_result_csv
@@ -62,11 +60,44 @@ def main() -> None:
                           ci_high=f"{found.high:.4f}", t_low=f"{found.t_low:.4f}", t_high=f"{found.t_high:.4f}",
                           excludes_zero=found.excludes_zero, psnr_db_mean=f"{psnr:.3f}"))
     write_result_csv(RESULTS / "cbknn_grid_80x60.csv", table, list(table[0]), commands)
-    figure = args.work / f"{args.sequence}_grid" / "sweep.png"
-    if figure.is_file():  # not when the rows came from the kept runs: the figure in RESULTS stays
-        shutil.copyfile(figure, RESULTS / "cbknn_grid_80x60.png")
-        print(f"wrote {RESULTS / 'cbknn_grid_80x60.png'}")
+    plot(table, RESULTS / "cbknn_grid_80x60.png", args.sequence)
 
+
+def plot(table: list[dict], path: Path, sequence: str) -> None:
+    """paper - off (ATE, cm) over alpha x K0, a panel per beta; a star where both 95 % intervals exclude zero."""
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    grid = [r for r in table if r["mode"] == "paper"]
+    alphas, k0s, betas = (list(dict.fromkeys(r[k] for r in grid)) for k in ("alpha", "k0", "beta"))
+    reach = max(abs(float(r["difference"])) for r in grid)
+    fig = Figure(figsize=(4.2 * len(betas) + 1, 3.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = []
+    for n, beta in enumerate(betas):
+        ax = fig.add_subplot(1, len(betas), n + 1)
+        axes.append(ax)
+        cells = np.full((len(k0s), len(alphas)), np.nan)
+        for r in (r for r in grid if r["beta"] == beta):
+            j, i = k0s.index(r["k0"]), alphas.index(r["alpha"])
+            cells[j, i] = float(r["difference"])
+            star = " *" if r["excludes_zero"] == "True" or r["excludes_zero"] is True else ""
+            ax.text(i, j, f"{cells[j, i]:+.3f}{star}\n[{float(r['ci_low']):+.3f}, {float(r['ci_high']):+.3f}]",
+                    ha="center", va="center", fontsize=7,
+                    color="white" if abs(cells[j, i]) > 0.6 * reach else "black")
+        image = ax.imshow(cells, cmap="RdBu_r", vmin=-reach, vmax=reach, aspect="auto", origin="lower")
+        ax.set_xticks(range(len(alphas)), alphas, fontsize=7)
+        ax.set_yticks(range(len(k0s)), k0s, fontsize=7)
+        ax.set_xlabel("alpha (px at 80 px wide)")
+        ax.set_ylabel("K0")
+        ax.set_title(f"beta = {beta}", fontsize=8)
+    fig.colorbar(image, ax=axes, label="ATE paper - off (cm)")
+    n = grid[0]["n"]
+    fig.suptitle(f"{sequence}: paper - off per seed, mean and 95 % bootstrap interval (n = {n}; * both intervals "
+                 "exclude 0)", fontsize=9)
+    fig.savefig(path, dpi=110)
+    print(f"wrote {path}")
 
 if __name__ == "__main__":
     main()

@@ -138,12 +138,15 @@ def plot_sweep_heatmap(path: str | os.PathLike, rows: list[dict], fields: list[s
 
     xs, ys = values_of(x_field), values_of(y_field)
     panels = list(dict.fromkeys(tuple(str(r[f]) for f in rest) for r in rows)) or [()]
+    # one colour scale for every panel, so a single colour bar; constrained layout keeps the labels apart
     fig = Figure(figsize=(min(4 + 0.9 * len(xs), 12) * min(len(panels), 3) / 1.5, 1.5 + 0.6 * len(ys)
-                          * math.ceil(len(panels) / 3)))
+                          * math.ceil(len(panels) / 3)), layout="constrained")
     finite = [float(r[metric]) for r in rows if r[metric] is not None and np.isfinite(float(r[metric]))]
     vmin, vmax = (min(finite), max(finite)) if finite else (0.0, 1.0)
+    axes = []
     for n, panel in enumerate(panels):
         ax = fig.add_subplot(math.ceil(len(panels) / 3), min(len(panels), 3), n + 1)
+        axes.append(ax)
         grid = np.full((len(ys), len(xs)), np.nan)
         for j, yv in enumerate(ys):
             for i, xv in enumerate(xs):
@@ -165,7 +168,7 @@ def plot_sweep_heatmap(path: str | os.PathLike, rows: list[dict], fields: list[s
         ax.set_ylabel(y_field or "")
         if rest:
             ax.set_title(", ".join(f"{f}={v}" for f, v in zip(rest, panel)), fontsize=8)
-        fig.colorbar(image, ax=ax, label=metric)
+    fig.colorbar(image, ax=axes, label=metric)
     if title:
         fig.suptitle(title)
     return _save(fig, path, dpi)
