@@ -141,8 +141,6 @@ def main() -> None:
 
 
 MODE_COLOURS = {"paper": "tab:orange", "blur": "tab:green", "pyramid": "tab:purple"}
-
-
 FACTOR_ORDER = ("clean", "map_noise_cm", "persistent_noise_cm", "depth_noise_cm", "stride")
 
 
