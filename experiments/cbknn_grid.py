@@ -82,7 +82,7 @@ def plot(table: list[dict], path: Path, sequence: str) -> None:
         for r in (r for r in grid if r["beta"] == beta):
             j, i = k0s.index(r["k0"]), alphas.index(r["alpha"])
             cells[j, i] = float(r["difference"])
-            star = " *" if r["excludes_zero"] == "True" or r["excludes_zero"] is True else ""
+            star = " *" if r["excludes_zero"] else ""
             ax.text(i, j, f"{cells[j, i]:+.3f}{star}\n[{float(r['ci_low']):+.3f}, {float(r['ci_high']):+.3f}]",
                     ha="center", va="center", fontsize=7,
                     color="white" if abs(cells[j, i]) > 0.6 * reach else "black")
@@ -98,6 +98,7 @@ def plot(table: list[dict], path: Path, sequence: str) -> None:
                  "exclude 0)", fontsize=9)
     fig.savefig(path, dpi=110)
     print(f"wrote {path}")
+
 
 if __name__ == "__main__":
     main()
