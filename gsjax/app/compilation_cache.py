@@ -25,7 +25,8 @@ def enable_compilation_cache() -> Path:
     path = cache_dir()
     path.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", str(path))
-    # Cache everything that took noticeable time to compile (the default skips programs under 1 s).
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    # Cache every program (the default skips those under 1 s): a warm run then compiles nothing, not even the
+    # evaluation render (0.16 s) and the many small programs of its first calls.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path

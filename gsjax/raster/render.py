@@ -207,6 +207,7 @@ def render(
     settings: RasterSettings = RasterSettings(),
     cbknn: cb.CBKNN | None = None,
     motion: float | jax.Array = 0.0,
+    selection: SlotSelection | None = None,
 ) -> Render:
     """Render a Gaussian map from a world-to-camera pose, optionally with CB-KNN smoothing.
 
@@ -218,6 +219,8 @@ def render(
       cbknn: ``None`` for the canonical render, or a :class:`gsjax.raster.cbknn.CBKNN` to smooth each pixel's
         contributors transiently (the Gaussians are not modified); see :mod:`gsjax.raster.cbknn`.
       motion: inter-frame motion gamma in [0, 1] for CB-KNN's adaptive K (ignored without ``cbknn``).
+      selection: ``None`` selects each pixel's contributors at ``w2c``; a :class:`SlotSelection` made at a nearby
+        pose (:func:`select_slots`, same intrinsics and settings) composites those slots instead (no binning, no walk).
 
     Returns:
       :class:`Render` with colour [H, W, 3], depth [H, W] = sum w z (not normalised by the silhouette),
@@ -237,22 +240,73 @@ def render(
     :func:`check_render_inputs`).
     """
     check_render_inputs(gaussians, w2c, intrinsics, settings, cbknn, motion)
+    if selection is not None:
+        grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
+        expected = (settings.max_contributors, grid.num_tiles * grid.pixels_per_tile)
+        if not isinstance(selection, SlotSelection) or tuple(np.shape(selection.ids)) != expected:
+            got = list(np.shape(selection.ids)) if isinstance(selection, SlotSelection) else type(selection).__name__
+            raise ValueError(f"selection must be a SlotSelection with ids of shape {list(expected)} (K x the tile "
+                             f"grid's pixels, from select_slots with the same intrinsics and settings), got {got}")
     return _render(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, settings, cbknn,
-                   jnp.asarray(motion, jnp.float32))
+                   jnp.asarray(motion, jnp.float32), selection)
+
+
+class SlotSelection(NamedTuple):
+    """The contributor slots of every pixel, chosen at one pose (:func:`select_slots`), for compositing at poses
+    near it (``render(..., selection=...)``). P = the tile grid's pixels in tile-major order.
+
+    Attributes:
+      ids: [K, P] int32 Gaussian indices front to back, slot-major; -1 marks an empty slot.
+      num_kept: [P] int32 contributors of each pixel at that pose (counted through its whole tile list).
+      out_of_k, cut_by_list: [P] bool, the walk was cut by K / by the end of an incomplete tile list.
+      residual_list: [P] float32 transmittance left at the end of the list (meaningful where ``cut_by_list``).
+      tiles_overflowed, intersections_dropped: [] int32, as :class:`RenderStats`.
+    """
+
+    ids: jax.Array
+    num_kept: jax.Array
+    out_of_k: jax.Array
+    cut_by_list: jax.Array
+    residual_list: jax.Array
+    tiles_overflowed: jax.Array
+    intersections_dropped: jax.Array
+
+
+def empty_selection(intrinsics: Intrinsics, settings: RasterSettings, batch: tuple[int, ...] = ()) -> SlotSelection:
+    """A :class:`SlotSelection` of ``batch``-shaped stacks with every slot empty, of the shapes :func:`select_slots`
+    gives for ``intrinsics`` and ``settings`` (a placeholder a loop carries until its first selection)."""
+    grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
+    pixels = batch + (grid.num_tiles * grid.pixels_per_tile,)
+    return SlotSelection(ids=jnp.full(batch + (settings.max_contributors,) + pixels[-1:], -1, jnp.int32),
+                         num_kept=jnp.zeros(pixels, jnp.int32), out_of_k=jnp.zeros(pixels, bool),
+                         cut_by_list=jnp.zeros(pixels, bool), residual_list=jnp.zeros(pixels, jnp.float32),
+                         tiles_overflowed=jnp.zeros(batch, jnp.int32),
+                         intersections_dropped=jnp.zeros(batch, jnp.int32))
+
+
+def select_slots(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics,
+                 settings: RasterSettings = RasterSettings()) -> SlotSelection:
+    """The first-K contributors of every pixel at ``w2c`` (project, bin and the selection walk of :func:`render`,
+    no gradient), to composite at nearby poses with ``render(..., selection=...)``.
+
+    At the pose it was chosen at, ``render(g, w2c, ..., selection=select_slots(g, w2c, ...))`` is ``render(g, w2c,
+    ...)``. At another pose the same slots are composited, in the same order, with everything that depends on the
+    pose (centres, footprints, alphas, depths and their gradients) recomputed there: exact for those slots, but a
+    Gaussian that would enter or leave a pixel's first K there does not, and the stop rule is not re-applied. The
+    tracker uses it to skip binning and the walk on most iterations (``tracking.reselect_every``).
+    """
+    check_render_inputs(gaussians, w2c, intrinsics, settings)
+    return _select(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, settings)
+
+
+def _as_float32(gaussians: Gaussians) -> Gaussians:
+    return jax.tree_util.tree_map(lambda x: x if x.dtype == jnp.bool_ else jnp.asarray(x, jnp.float32), gaussians)
 
 
 @jax.jit
-def _render(
-    gaussians: Gaussians,
-    w2c: jax.Array,
-    intrinsics: Intrinsics,
-    settings: RasterSettings,
-    cbknn: cb.CBKNN | None,
-    motion: jax.Array,
-) -> Render:
-    gaussians = jax.tree_util.tree_map(
-        lambda x: x if x.dtype == jnp.bool_ else jnp.asarray(x, jnp.float32), gaussians
-    )
+def _select(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, settings: RasterSettings) -> SlotSelection:
+    gaussians = jax.lax.stop_gradient(_as_float32(gaussians))
+    w2c = jax.lax.stop_gradient(w2c)
     grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
     with jax.named_scope("project"):
         projected = project(gaussians, w2c, intrinsics, settings.near, settings.dilation)
@@ -270,11 +324,57 @@ def _render(
         selection = select_contributors(
             projected, tiles, grid, settings.max_contributors, settings.tiles_per_batch, settings.uses_pallas
         )
+    return SlotSelection(*selection, tiles_overflowed=jnp.sum(tiles.count > settings.tile_capacity, dtype=jnp.int32),
+                         intersections_dropped=tiles.intersections_dropped)
+
+
+def strided_selection(selection: SlotSelection, height: int, width: int, tile_size: int, strided_tile_size: int,
+                      row: int | jax.Array, col: int | jax.Array) -> SlotSelection:
+    """The slots of every other pixel from (``row``, ``col``) (0 or 1, may be traced) of a ``selection`` made for an
+    image ``height`` x ``width`` with ``tile_size`` tiles, laid out for that strided image
+    (:meth:`gsjax.camera.Intrinsics.strided`) with ``strided_tile_size`` tiles. The strided render's contributors are
+    the full render's at those pixels, so this is the strided image's own selection at the same pose."""
+    full = TileGrid.for_image(height, width, tile_size)
+    part = TileGrid.for_image(height // 2, width // 2, strided_tile_size)
+    # (u, v) of each strided pixel, tile-major (numpy: shapes are static, and this runs under jit)
+    t = part.tile_size
+    local_v, local_u = np.divmod(np.arange(t * t), t)
+    tile_y, tile_x = np.divmod(np.arange(part.num_tiles), part.tiles_x)
+    u_part = (tile_x[:, None] * t + local_u[None, :]).reshape(-1)
+    v_part = (tile_y[:, None] * t + local_v[None, :]).reshape(-1)
+    tables = []
+    for r in (0, 1):
+        for c in (0, 1):
+            u, v = 2 * u_part + c, 2 * v_part + r  # the full image's pixel, inside its padded tile grid
+            f = full.tile_size
+            tables.append((v // f * full.tiles_x + u // f) * full.pixels_per_tile + (v % f) * f + u % f)
+    index = jnp.asarray(np.stack(tables).astype(np.int32))[2 * row + col]  # [P']
+    per_pixel = lambda x: x[..., index]  # noqa: E731
+    return selection._replace(ids=selection.ids[:, index], num_kept=per_pixel(selection.num_kept),
+                              out_of_k=per_pixel(selection.out_of_k), cut_by_list=per_pixel(selection.cut_by_list),
+                              residual_list=per_pixel(selection.residual_list))
+
+
+@jax.jit
+def _render(
+    gaussians: Gaussians,
+    w2c: jax.Array,
+    intrinsics: Intrinsics,
+    settings: RasterSettings,
+    cbknn: cb.CBKNN | None,
+    motion: jax.Array,
+    selection: SlotSelection | None = None,
+) -> Render:
+    gaussians = _as_float32(gaussians)
+    grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
+    if selection is None:
+        selection = _select(gaussians, w2c, intrinsics, settings)
     in_image = grid.in_image()
     with jax.named_scope("composite"):
         pixels = grid.pixel_coords().reshape(-1, 2)
         k_pixel = None
         if cbknn is not None:
+            projected = project(gaussians, w2c, intrinsics, settings.near, settings.dilation)
             rho = cb.density_map(projected, grid.height, grid.width, cbknn.cell)
             k_map = cb.kernel_size_map(rho, cbknn, motion)
             k_pixel = k_map.reshape(-1)[cb.pixel_cells(pixels, grid.height, grid.width, cbknn.cell)]
@@ -303,8 +403,8 @@ def _render(
         jnp.where(selection.cut_by_list, selection.residual_list, 0.0),
     )
     stats = RenderStats(
-        tiles_overflowed=jnp.sum(tiles.count > settings.tile_capacity, dtype=jnp.int32),
-        intersections_dropped=tiles.intersections_dropped,
+        tiles_overflowed=selection.tiles_overflowed,
+        intersections_dropped=selection.intersections_dropped,
         pixels_out_of_k=jnp.sum(in_image & selection.out_of_k, dtype=jnp.int32),
         pixels_truncated=jnp.sum(truncated, dtype=jnp.int32),
         max_residual_transmittance=jnp.max(jnp.where(truncated, residual, 0.0)),

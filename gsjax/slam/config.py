@@ -99,6 +99,12 @@ class TrackingConfig:
         coarsest, each on every pixel with the residuals blurred at ``coarse_sigma_px`` x 2^(levels - 1 - level) px
         (a Gaussian pyramid's smoothing without its subsampling), then the strided and full iterations; only the
         full ones compete for the best pose. The step sizes decay over all iterations.
+      reselect_every: 1 (SplaTAM) chooses every pixel's contributors (binning and the selection walk) at each
+        iteration's own pose; R > 1 chooses them at iterations 0, R, 2R, ... (counted over coarse, strided and full
+        iterations; the strided grids take the full image's slots at their pixels) and composites those slots at
+        the poses in between, with the render and its gradient exact for those slots (``adam`` only; see
+        :func:`gsjax.raster.select_slots`). The map is fixed while a frame is tracked and the pose moves by
+        millimetres, so few slots that matter change.
     """
 
     iters: int = static(40)
@@ -124,9 +130,11 @@ class TrackingConfig:
     coarse_iters: int = static(0)
     coarse_levels: int = static(2)
     coarse_sigma_px: float = 1.0
+    reselect_every: int = static(1)
 
     def __post_init__(self):
         _check_positive_int("tracking", "iters", self.iters)
+        _check_positive_int("tracking", "reselect_every", self.reselect_every)
         _check_positive_int("tracking", "converge_window", self.converge_window, 0)
         _check_positive_int("tracking", "strided_iters", self.strided_iters, 0)
         _check_positive_int("tracking", "blur_radius_px", self.blur_radius_px, 0)
@@ -177,6 +185,10 @@ class MappingConfig:
       skip_step_at_prune: reproduce SplaTAM's quirk of skipping the Adam step at pruning iterations.
       overlap_samples: depth pixels sampled to measure keyframe overlap; ``overlap_margin``: border (px) a
         projected sample must clear to count as inside a keyframe.
+      reselect_every: 1 (SplaTAM) chooses every pixel's contributors at each iteration, on the map as it is then;
+        R > 1 chooses them for every view of the window at iterations 0, R, 2R, ... (counted over strided and full
+        iterations) and composites those slots in between, as the map changes (render and gradient exact for those
+        slots; a Gaussian that would newly enter a pixel's first K in between does not).
     """
 
     iters: int = static(30)
@@ -197,9 +209,11 @@ class MappingConfig:
     clamp_rgb: bool = False
     overlap_samples: int = static(1600)
     overlap_margin: float = 20.0
+    reselect_every: int = static(1)
 
     def __post_init__(self):
         _check_positive_int("mapping", "iters", self.iters)
+        _check_positive_int("mapping", "reselect_every", self.reselect_every)
         _check_positive_int("mapping", "strided_iters", self.strided_iters, 0)
         _check_positive_int("mapping", "window_size", self.window_size, 2)
         _check_positive_int("mapping", "overlap_samples", self.overlap_samples)

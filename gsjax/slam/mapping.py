@@ -10,13 +10,15 @@ import optax
 
 from gsjax.camera import Intrinsics
 from gsjax.gaussians import Gaussians
+from gsjax.raster import select_slots
+from gsjax.raster.render import empty_selection
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import prune
 from gsjax.slam.keyframes import CURRENT, Window
 from gsjax.slam.losses import mapping_loss
 from gsjax.slam.optimizers import MAP_PARAMS, finite_only_if_loss_is, map_optimizer, nonfinite_steps
 from gsjax.slam.state import KeyframeBuffer
-from gsjax.slam.views import render_view, strided_frame, strided_setup
+from gsjax.slam.views import render_view, strided_frame, strided_setup, strided_slots
 
 
 class WindowFrames(NamedTuple):
@@ -77,7 +79,8 @@ def map_window(
     :func:`gsjax.slam.views.strided_setup`), then ``config.mapping.iters`` on every pixel, each on one view drawn
     uniformly from the valid window entries; pruning at ``prune_iters`` (counted over all of them; after the
     gradient, before the step, as SplaTAM). ``first_map`` (traced bool): the frame-0 map, whose means take the
-    step ``lr_means_first``."""
+    step ``lr_means_first``. With ``mapping.reselect_every`` R > 1 the contributor slots of every window view are
+    chosen at iterations 0, R, 2R, ... and composited in between."""
     cfg = config.mapping
     optimizer = map_optimizer(config, jnp.where(first_map, cfg.lr_means_first, cfg.lr_means))
     params = {name: getattr(gaussians, name) for name in MAP_PARAMS}
@@ -86,25 +89,38 @@ def map_window(
     picks = jax.random.categorical(key, jnp.where(views.valid, 0.0, -jnp.inf), shape=(total,))
     strided_config = strided_setup(config, intrinsics)
 
-    def full_view(g, view_index, smooth, it):
-        view = render_view(g, views.w2c[view_index], intrinsics, config, smooth, views.gamma[view_index])
+    every = cfg.reselect_every
+
+    def full_view(g, view_index, smooth, it, selection):
+        view = render_view(g, views.w2c[view_index], intrinsics, config, smooth, views.gamma[view_index], selection)
         return view, views.color[view_index], views.depth[view_index]
 
-    def strided_view(g, view_index, smooth, it):
+    def strided_view(g, view_index, smooth, it, selection):
         color, depth, intrinsics_s = strided_frame(views.color[view_index], views.depth[view_index], intrinsics, it % 4)
-        view = render_view(g, views.w2c[view_index], intrinsics_s, strided_config, smooth, views.gamma[view_index])
+        if selection is not None:
+            selection = strided_slots(selection, config, intrinsics, it % 4)
+        view = render_view(g, views.w2c[view_index], intrinsics_s, strided_config, smooth, views.gamma[view_index],
+                           selection)
         return view, color, depth
 
-    def loss_fn(params, active, view_index, it, view_at):
+    def loss_fn(params, active, view_index, it, view_at, selection):
         g = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
         smooth = views.keyframe[view_index] & smooth_stage
-        view, color, depth = view_at(g, view_index, smooth, it)
+        view, color, depth = view_at(g, view_index, smooth, it, selection)
         return mapping_loss(view, color, depth, cfg.lambda_color, cfg.lambda_depth, cfg.ssim_weight)
 
+    def select_all(params, active):  # every window view's slots on the map as it is now
+        g = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
+        return jax.vmap(lambda w2c: select_slots(g, w2c, intrinsics, config.raster))(views.w2c)
+
     def iteration(view_at, carry, inputs):
-        params, active, opt_state = carry
+        params, active, opt_state, selections = carry
         it, view_index = inputs
-        loss, grads = jax.value_and_grad(loss_fn)(params, active, view_index, it, view_at)
+        selection = None
+        if every > 1:
+            selections = jax.lax.cond(it % every == 0, lambda: select_all(params, active), lambda: selections)
+            selection = jax.tree.map(lambda x: x[view_index], selections)
+        loss, grads = jax.value_and_grad(loss_fn)(params, active, view_index, it, view_at, selection)
         # Free slots render nothing; only the active entries' gradients decide whether the step is finite.
         grads = {name: jnp.where(active.reshape(active.shape + (1,) * (g.ndim - 1)), g, 0.0)
                  for name, g in grads.items()}
@@ -115,14 +131,17 @@ def map_window(
         updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grads), opt_state)
         params = optax.apply_updates(params, updates)
         params["rgb"] = jnp.where(cfg.clamp_rgb, jnp.clip(params["rgb"], 0.0, 1.0), params["rgb"])
-        return (params, active, opt_state), loss
+        return (params, active, opt_state, selections), loss
 
-    carry = (params, gaussians.active, optimizer.init(params))
+    selections = None
+    if every > 1:
+        selections = empty_selection(intrinsics, config.raster, views.w2c.shape[:1])
+    carry = (params, gaussians.active, optimizer.init(params), selections)
     steps = jnp.arange(total, dtype=jnp.int32)
     if cfg.strided_iters:
         carry, _ = jax.lax.scan(lambda c, x: iteration(strided_view, c, x), carry,
                                 (steps[: cfg.strided_iters], picks[: cfg.strided_iters]))
-    (params, active, opt_state), losses = jax.lax.scan(
+    (params, active, opt_state, _), losses = jax.lax.scan(
         lambda c, x: iteration(full_view, c, x), carry, (steps[cfg.strided_iters:], picks[cfg.strided_iters:])
     )
     nonfinite = nonfinite_steps(opt_state)

@@ -1,7 +1,8 @@
 """Noise injection for robustness studies (:class:`gsjax.slam.config.NoiseConfig`): pure functions of a key.
 
 The keys are folded from the step's key with fixed stream numbers, so the step's other random choices (window
-and pixel sampling) are the same with or without noise, and zero noise leaves every value unchanged.
+and pixel sampling) are the same with or without noise, and zero noise leaves every value unchanged. Each function
+draws its noise inside a ``lax.cond`` on its levels being nonzero, so the default step (no noise) draws nothing.
 """
 
 from __future__ import annotations
@@ -25,23 +26,27 @@ def add_depth_noise(frame: Frame, noise: NoiseConfig, key: jax.Array) -> Frame:
     """``frame`` with N(0, (depth_cm / 100)^2) m added to each valid depth pixel (kept valid: at least 1 mm, or the
     input where that is less; invalid pixels stay 0)."""
     depth = frame.depth
-    sample = jax.random.normal(key, depth.shape, depth.dtype) * (noise.depth_cm / 100.0)
-    floor = jnp.minimum(depth, MIN_NOISY_DEPTH_M)  # so zero noise returns the input exactly
-    noisy = jnp.where(depth > 0, jnp.maximum(depth + sample, floor), 0.0)
-    return dataclasses.replace(frame, depth=noisy)
+
+    def noisy():
+        sample = jax.random.normal(key, depth.shape, depth.dtype) * (noise.depth_cm / 100.0)
+        floor = jnp.minimum(depth, MIN_NOISY_DEPTH_M)  # so zero noise returns the input exactly
+        return jnp.where(depth > 0, jnp.maximum(depth + sample, floor), 0.0)
+
+    return dataclasses.replace(frame, depth=jax.lax.cond(noise.depth_cm > 0, noisy, lambda: depth))
 
 
 def perturb_map(gaussians: Gaussians, noise: NoiseConfig, key: jax.Array) -> Gaussians:
     """``gaussians`` with N(0, (map_means_cm / 100)^2) m on each mean and N(0, map_rgb^2) on each colour channel."""
-    return _perturbed(gaussians, noise.map_means_cm, noise.map_rgb, key)
+    return jax.lax.cond((noise.map_means_cm > 0) | (noise.map_rgb > 0),
+                        lambda: _perturbed(gaussians, noise.map_means_cm, noise.map_rgb, key), lambda: gaussians)
 
 
 def perturb_stored_map(gaussians: Gaussians, noise: NoiseConfig, frame: jax.Array, key: jax.Array) -> Gaussians:
     """The stored map as frame ``frame`` starts: at ``noise.persistent_frame``, with N(0, (persistent_means_cm /
     100)^2) m on each mean and N(0, persistent_rgb^2) on each colour channel; otherwise ``gaussians`` itself."""
-    noisy = _perturbed(gaussians, noise.persistent_means_cm, noise.persistent_rgb, key)
-    now = frame == noise.persistent_frame
-    return jax.tree_util.tree_map(lambda n, g: jnp.where(now, n, g), noisy, gaussians)
+    now = (frame == noise.persistent_frame) & ((noise.persistent_means_cm > 0) | (noise.persistent_rgb > 0))
+    return jax.lax.cond(now, lambda: _perturbed(gaussians, noise.persistent_means_cm, noise.persistent_rgb, key),
+                        lambda: gaussians)
 
 
 def _perturbed(gaussians: Gaussians, means_cm, rgb_std, key: jax.Array) -> Gaussians:

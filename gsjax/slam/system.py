@@ -120,6 +120,15 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
                         lambda s: _coast(s, frame, config, pose), state)
 
 
+def _no_outputs() -> StepOutputs:
+    """The zeros a padding frame gives (the dtypes of every step's outputs: ``lax.cond`` checks they match)."""
+    zero, no = jnp.float32(0.0), jnp.bool_(False)
+    return StepOutputs(w2c=jnp.zeros((4, 4), jnp.float32), tracking_loss=zero, mapping_loss=zero,
+                       num_gaussians=jnp.int32(0), added=jnp.int32(0), dropped=jnp.int32(0), keyframe=no, gamma=zero,
+                       nonfinite=jnp.int32(0), truncated=no, truncation_residual=zero, skipped=no, retried=no,
+                       diverged=no, nonfinite_gaussians=jnp.int32(0), tracking_iters=jnp.int32(0), depth_valid=zero)
+
+
 def _coast(state: SlamState, frame: Frame, config: SlamConfig, pose) -> tuple[SlamState, StepOutputs]:
     """A frame without usable depth: the predicted (or known) pose, the map and keyframes untouched."""
     w2c = orthonormalize(_predicted_pose(state) if pose is None else pose)
@@ -235,8 +244,7 @@ def run_chunk(state: SlamState, frames: Frame, valid: jax.Array, config: SlamCon
         one = lambda s, f: step(s, f, config, intrinsics, pose)  # noqa: E731
 
         def skip(state, frame):
-            _, zeros = jax.eval_shape(one, state, frame)
-            return state, jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), zeros)
+            return state, _no_outputs()
 
         return jax.lax.cond(is_real, one, skip, state, frame)
 

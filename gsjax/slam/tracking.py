@@ -32,10 +32,12 @@ import optimistix as optx
 
 from gsjax.camera import Intrinsics, camera_center, rotation_angle, se3_exp
 from gsjax.gaussians import Gaussians
+from gsjax.raster import select_slots
+from gsjax.raster.render import empty_selection
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.losses import tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
-from gsjax.slam.views import render_view, strided_frame, strided_setup
+from gsjax.slam.views import render_view, strided_frame, strided_setup, strided_slots
 
 
 class TrackResult(NamedTuple):
@@ -64,12 +66,16 @@ class TrackingProblem(NamedTuple):
 
 
 class TrackingObjective(NamedTuple):
-    """The tracker's objective around ``w2c_init``: ``view_at(delta)`` renders at ``exp(delta) @ w2c_init``,
-    ``loss(delta)`` is the tracking loss there (delta [6] = (rho m, phi rad)), ``lambda_color`` its colour weight."""
+    """The tracker's objective around ``w2c_init``: ``view_at(delta, selection=None)`` renders at ``exp(delta) @
+    w2c_init``, ``loss(delta, selection=None)`` is the tracking loss there (delta [6] = (rho m, phi rad)),
+    ``lambda_color`` its colour weight, and ``select(delta)`` chooses every pixel's contributor slots at that pose
+    (:func:`gsjax.raster.select_slots`, the full image's): given to ``view_at``/``loss``, those slots are composited
+    instead of being chosen at the rendered pose (``tracking.reselect_every``)."""
 
     view_at: Callable
     loss: Callable
     lambda_color: float | jax.Array
+    select: Callable
 
 
 def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> TrackingObjective:
@@ -84,14 +90,20 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
     ) else cfg.lambda_color
     smooth = jnp.asarray(smooth) & config.cbknn.track_keyframes
 
-    def view_at(delta):
-        return render_view(gaussians, se3_exp(delta) @ w2c_init, intrinsics, config, smooth, gamma)
+    def view_at(delta, selection=None):
+        return render_view(gaussians, se3_exp(delta) @ w2c_init, intrinsics, config, smooth, gamma, selection)
 
-    def loss_fn(delta):
-        return tracking_loss(view_at(delta), color, depth, lambda_color, cfg.lambda_depth, cfg.sil_threshold,
-                             cfg.normalized_depth, cfg.match_exposure, cfg.blur_px, cfg.blur_radius_px)
+    def loss_fn(delta, selection=None):
+        return tracking_loss(view_at(delta, selection), color, depth, lambda_color, cfg.lambda_depth,
+                             cfg.sil_threshold, cfg.normalized_depth, cfg.match_exposure, cfg.blur_px,
+                             cfg.blur_radius_px)
 
-    return TrackingObjective(view_at, loss_fn, lambda_color)
+    def select(delta):
+        return select_slots(gaussians, se3_exp(delta) @ w2c_init, intrinsics, config.raster)
+
+    select.intrinsics, select.settings = intrinsics, config.raster  # what its selections are laid out for
+
+    return TrackingObjective(view_at, loss_fn, lambda_color, select)
 
 
 def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
@@ -105,13 +117,14 @@ def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
         return _track_lm((objective.view_at, problem.color, problem.depth), objective.loss, problem.w2c_init, config,
                          objective.lambda_color, None if strided is None else strided(0))
     return _track_adam(objective.loss, problem.w2c_init, config,
-                       None if strided is None else lambda delta, phase: strided(phase)[0].loss(delta),
-                       coarse_losses(problem, config))
+                       None if strided is None else lambda delta, phase, sel: strided(phase)[0].loss(delta, sel),
+                       coarse_losses(problem, config), objective.select)
 
 
 def coarse_losses(problem: TrackingProblem, config: SlamConfig) -> list[Callable]:
-    """The losses (delta [6] -> []) of coarse-to-fine tracking's levels, coarsest first: the tracking objective with
-    the residuals blurred at ``coarse_sigma_px`` x 2^(levels - 1 - level) px; empty without ``coarse_iters``."""
+    """The losses (delta [6], selection=None -> []) of coarse-to-fine tracking's levels, coarsest first: the tracking
+    objective with the residuals blurred at ``coarse_sigma_px`` x 2^(levels - 1 - level) px; empty without
+    ``coarse_iters``."""
     cfg = config.tracking
     if not cfg.coarse_iters:
         return []
@@ -128,32 +141,48 @@ def strided_problem(
 ) -> Callable[[int | jax.Array], tuple[TrackingObjective, jax.Array, jax.Array]]:
     """``on_grid(phase)`` -> (the :class:`TrackingObjective` on every other pixel, (row, col) = (phase // 2,
     phase % 2), with its loss scaled by the pixel ratio so its gradient has the full loss's scale; that colour
-    [H // 2, W // 2, 3]; that depth). The render there is the full render's pixels (:func:`strided_setup`)."""
+    [H // 2, W // 2, 3]; that depth). The render there is the full render's pixels (:func:`strided_setup`); its
+    ``view_at``/``loss`` take the full image's selection (``select``) and composite its slots at the grid's pixels."""
     intrinsics = problem.intrinsics
-    config = strided_setup(config, intrinsics)
+    full = tracking_objective(problem, config)
+    strided_config = strided_setup(config, intrinsics)
     ratio = (intrinsics.height * intrinsics.width) / ((intrinsics.height // 2) * (intrinsics.width // 2))
 
     def on_grid(phase):
         color_s, depth_s, intrinsics_s = strided_frame(problem.color, problem.depth, intrinsics, phase)
-        objective = tracking_objective(problem._replace(color=color_s, depth=depth_s, intrinsics=intrinsics_s), config)
-        return objective._replace(loss=lambda delta: ratio * objective.loss(delta)), color_s, depth_s
+        objective = tracking_objective(problem._replace(color=color_s, depth=depth_s, intrinsics=intrinsics_s),
+                                       strided_config)
+
+        def on_grid_slots(selection):
+            return None if selection is None else strided_slots(selection, config, intrinsics, phase)
+
+        return TrackingObjective(
+            view_at=lambda delta, selection=None: objective.view_at(delta, on_grid_slots(selection)),
+            loss=lambda delta, selection=None: ratio * objective.loss(delta, on_grid_slots(selection)),
+            lambda_color=objective.lambda_color, select=full.select), color_s, depth_s
 
     return on_grid
 
 
-def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coarse=()) -> TrackResult:
-    """Adam on ``loss_fn`` (delta [6] -> []) for ``tracking.iters`` iterations, after ``tracking.strided_iters`` on
-    ``strided_loss_fn(delta, phase)`` when given (phase = the iteration number mod 4: each of the four strided grids
-    in turn), after ``tracking.coarse_iters`` split over the ``coarse`` levels' losses (coarsest first). Only full
-    iterations compete for the best pose: strided and blurred losses do not compare with them."""
+def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coarse=(), select=None) -> TrackResult:
+    """Adam on ``loss_fn`` (delta [6], selection -> []) for ``tracking.iters`` iterations, after
+    ``tracking.strided_iters`` on ``strided_loss_fn(delta, phase, selection)`` when given (phase = the iteration
+    number mod 4: each of the four strided grids in turn), after ``tracking.coarse_iters`` split over the ``coarse``
+    levels' losses (coarsest first). Only full iterations compete for the best pose: strided and blurred losses do
+    not compare with them. With ``tracking.reselect_every`` R > 1, ``select(delta)`` chooses the contributor slots
+    at iterations 0, R, 2R, ... and the iterations in between composite those (the selection is None with R = 1:
+    every render chooses its own)."""
     cfg = config.tracking
     optimizer = pose_optimizer(config)
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
+    every = cfg.reselect_every if select is not None else 1
 
     def iteration(loss_fn, carry):
-        it, delta, opt_state, best_delta, best_loss, progress_at, progress_loss = carry
-        loss, grad = jax.value_and_grad(lambda d: loss_fn(tangent(d), it))(delta)
+        it, delta, opt_state, best_delta, best_loss, progress_at, progress_loss, selection = carry
+        if every > 1:
+            selection = jax.lax.cond(it % every == 0, lambda: select(tangent(delta)), lambda: selection)
+        loss, grad = jax.value_and_grad(lambda d: loss_fn(tangent(d), it, selection))(delta)
         updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grad), opt_state)
         new_delta = optax.apply_updates(delta, updates)
         better = jnp.isfinite(loss) & (loss < best_loss)
@@ -162,21 +191,28 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
         # Progress: the loss fell by converge_rtol below the loss of the last progress (the first finite loss is).
         progress = jnp.isfinite(loss) & (loss < progress_loss * (1.0 - cfg.converge_rtol))
         return (it + 1, new_delta, opt_state, best_delta, jnp.where(better, loss, best_loss),
-                jnp.where(progress, it, progress_at), jnp.where(progress, loss, progress_loss))
+                jnp.where(progress, it, progress_at), jnp.where(progress, loss, progress_loss), selection)
 
     def scan(loss_fn, init, length):
         return jax.lax.scan(lambda carry, _: (iteration(loss_fn, carry), None), init, None, length=length)[0]
 
-    full_loss = lambda delta, it: loss_fn(delta)  # noqa: E731
+    def restart(final):  # the next stage goes on from this one's pose, optimiser state and selection
+        it, delta, opt_state = final[:3]
+        return (it, delta, opt_state, delta, inf, it, inf, final[7])
+
+    def full_loss(delta, it, selection):
+        return loss_fn(delta) if selection is None else loss_fn(delta, selection)
+
     inf = jnp.float32(jnp.inf)
-    init = (jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf)
+    selection0 = None
+    if every > 1:
+        selection0 = empty_selection(select.intrinsics, select.settings)
+    init = (jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf, selection0)
     for level, level_loss in enumerate(coarse):  # coarse_iters split over the levels, the remainder to the first
         count = cfg.coarse_iters // len(coarse) + (cfg.coarse_iters % len(coarse) if level == 0 else 0)
-        it, delta, opt_state = scan(lambda d, it, f=level_loss: f(d), init, count)[:3]
-        init = (it, delta, opt_state, delta, inf, it, inf)
+        init = restart(scan(lambda d, it, sel, f=level_loss: f(d) if sel is None else f(d, sel), init, count))
     if strided_loss_fn is not None and cfg.strided_iters:
-        it, delta, opt_state = scan(lambda d, it: strided_loss_fn(d, it % 4), init, cfg.strided_iters)[:3]
-        init = (it, delta, opt_state, delta, inf, it, inf)
+        init = restart(scan(lambda d, it, sel: strided_loss_fn(d, it % 4, sel), init, cfg.strided_iters))
     end = init[0] + cfg.iters
     if cfg.converge_window > 0:
         def running(carry):
@@ -274,7 +310,7 @@ def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: j
             number, first, _ = carry
             return (number == 0) | ((number == 1) & _diverged(first, w2c_init, previous_loss, config))
 
-        zeros = jax.tree.map(jnp.zeros_like, jax.eval_shape(lambda: track(problem, config)))
+        zeros = TrackResult(jnp.zeros((4, 4), jnp.float32), jnp.float32(0.0), jnp.int32(0), jnp.int32(0))
         _, first, second = jax.lax.while_loop(another, attempt, (jnp.int32(0), zeros, zeros))
     else:
         first = second = track(problem, config)

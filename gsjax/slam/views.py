@@ -10,7 +10,8 @@ import jax.numpy as jnp
 
 from gsjax.camera import Intrinsics
 from gsjax.gaussians import Gaussians
-from gsjax.raster import render
+from gsjax.raster import SlotSelection, render
+from gsjax.raster.render import strided_selection
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.presets import at_width
 
@@ -35,19 +36,25 @@ def _view(out) -> RenderedView:
 
 def render_view(
     gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, config: SlamConfig, smooth: bool | jax.Array,
-    gamma: float | jax.Array
+    gamma: float | jax.Array, selection: SlotSelection | None = None
 ) -> RenderedView:
     """Render ``gaussians`` at ``w2c``; with CB-KNN's per-pixel smoothing where ``smooth`` (a traced bool) is true.
+    ``selection``: contributor slots chosen at a nearby pose (:func:`gsjax.raster.select_slots`), or None to choose
+    them at ``w2c``.
 
     When the config never smooths renders (CB-KNN mode other than ``paper``), this is the canonical render and
     ``smooth`` is ignored, so no second render path is compiled.
     """
+    def canonical():
+        return _view(render(gaussians, w2c, intrinsics, config.raster, selection=selection))
+
     if not config.cbknn.smooth_renders:
-        return _view(render(gaussians, w2c, intrinsics, config.raster))
+        return canonical()
     return jax.lax.cond(
         smooth,
-        lambda: _view(render(gaussians, w2c, intrinsics, config.raster, cbknn=config.cbknn.params, motion=gamma)),
-        lambda: _view(render(gaussians, w2c, intrinsics, config.raster)),
+        lambda: _view(render(gaussians, w2c, intrinsics, config.raster, cbknn=config.cbknn.params, motion=gamma,
+                             selection=selection)),
+        canonical,
     )
 
 
@@ -59,6 +66,15 @@ def strided_setup(config: SlamConfig, intrinsics: Intrinsics) -> SlamConfig:
     raster = dataclasses.replace(config.raster, dilation=config.raster.dilation / 4.0,
                                  tile_size=max(config.raster.tile_size // 2, 1))
     return at_width(dataclasses.replace(config, raster=raster), intrinsics.width // 2, intrinsics.width)
+
+
+def strided_slots(selection: SlotSelection, config: SlamConfig, intrinsics: Intrinsics,
+                  phase: int | jax.Array) -> SlotSelection:
+    """The slots of strided grid ``phase`` (0-3, may be traced; see :func:`strided_frame`) taken from ``selection``,
+    made for the full image of ``intrinsics`` under ``config``: the strided render's own selection at that pose, laid
+    out for :func:`strided_setup`'s tiles."""
+    return strided_selection(selection, intrinsics.height, intrinsics.width, config.raster.tile_size,
+                             strided_setup(config, intrinsics).raster.tile_size, phase // 2, phase % 2)
 
 
 def strided_observation(image: jax.Array, row: int | jax.Array, col: int | jax.Array) -> jax.Array:

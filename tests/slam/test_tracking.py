@@ -13,6 +13,7 @@ import pytest
 from gsjax.camera import se3_exp, se3_log
 from gsjax.config_text import apply_overrides
 from gsjax.raster import render
+from gsjax.raster.render import empty_selection
 from gsjax.slam.losses import exposure_gain, rendered_depth, tracking_loss, tracking_mask
 from gsjax.slam.presets import with_cbknn_mode
 from gsjax.slam.tracking import TrackingProblem, _track_adam, track
@@ -52,15 +53,18 @@ def pose_error(w2c, w2c_true):
 
 
 @pytest.mark.parametrize("perturbation", sorted(PERTURBATIONS))
-@pytest.mark.parametrize("optimizer, iters, strided", [("adam", 60, 0), ("lm", 10, 0), ("adam", 20, 40),
-                                                       ("lm", 5, 5)])
+@pytest.mark.parametrize("optimizer, iters, strided, reselect", [("adam", 60, 0, 1), ("lm", 10, 0, 1),
+                                                                 ("adam", 20, 40, 1), ("lm", 5, 5, 1),
+                                                                 ("adam", 20, 40, 10)])
 def test_tracking_recovers_a_known_perturbation_of_a_rendered_map(rendered_scene, optimizer, iters, strided,
-                                                                  perturbation):
-    """On every pixel, and after ``strided`` iterations on a quarter of the pixels."""
+                                                                  reselect, perturbation):
+    """On every pixel, and after ``strided`` iterations on a quarter of the pixels; with ``reselect`` 10 each
+    pixel's contributors are chosen every 10th iteration (the strided grids take the full image's)."""
     gaussians, color, depth, w2c_true = rendered_scene
     delta = jnp.asarray(PERTURBATIONS[perturbation], jnp.float32)
     w2c_init = se3_exp(delta) @ w2c_true
-    config = apply_overrides(tracking_config(optimizer, iters), {"tracking.strided_iters": str(strided)})
+    config = apply_overrides(tracking_config(optimizer, iters), {"tracking.strided_iters": str(strided),
+                                                                 "tracking.reselect_every": str(reselect)})
     problem = TrackingProblem(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, False, 0.0)
     result = track_jit(problem, config)
     trans, rot = pose_error(result.w2c, w2c_true)
@@ -138,6 +142,43 @@ def test_a_frame_with_a_nan_pixel_keeps_the_initial_pose_and_counts_nonfinite(re
     result = track_jit(problem, config)
     np.testing.assert_array_equal(np.asarray(result.w2c), np.asarray(w2c_init))
     assert int(result.nonfinite) == counted
+
+
+def test_reselect_every_chooses_contributors_at_every_rth_iteration_across_stages():
+    """With ``reselect_every`` 5, 3 strided + 9 full iterations choose the contributors at iterations 0, 5 and 10
+    (counted over both stages, at the pose of that iteration) and hand each iteration the latest choice; with 1
+    no selection is handed over (each render chooses its own)."""
+    config = map_config()
+    intrinsics = tiny_sequence().intrinsics
+    chosen, handed = [], []
+
+    def select(delta):
+        jax.debug.callback(lambda d: chosen.append(np.asarray(d).copy()), delta)
+        return empty_selection(intrinsics, config.raster)._replace(tiles_overflowed=jnp.int32(marker(delta)))
+
+    def marker(delta):  # which selection: the first pose component in tenths of a millimetre
+        return jnp.round(delta[0] * 1e4).astype(jnp.int32)
+
+    select.intrinsics, select.settings = intrinsics, config.raster
+
+    def loss(delta, selection=None):
+        if selection is not None:
+            jax.debug.callback(lambda m: handed.append(int(m)), selection.tiles_overflowed)
+        return jnp.sum((delta - jnp.asarray([0.01, 0, 0, 0, 0, 0])) ** 2)
+
+    for every, expected_selects in ((5, 3), (1, 0)):
+        chosen.clear(), handed.clear()
+        tracking = dataclasses.replace(config.tracking, iters=9, strided_iters=3, reselect_every=every)
+        cfg = dataclasses.replace(config, tracking=tracking)
+        jax.block_until_ready(jax.jit(lambda w: _track_adam(loss, w, cfg, lambda d, phase, sel: loss(d, sel), (),
+                                                            select))(jnp.eye(4)))
+        assert len(chosen) == expected_selects
+        if every == 5:
+            markers = [int(np.round(d[0] * 1e4)) for d in chosen]
+            assert markers[0] == 0 and len(set(markers)) == 3  # at the start pose, then at later poses
+            assert handed == [markers[i // 5] for i in range(12)]
+        else:
+            assert handed == []
 
 
 def test_adam_skips_non_finite_iterations_and_keeps_the_best_finite_pose():

@@ -263,3 +263,33 @@ def expected_truncation(gaussians, w2c, intrinsics, max_contributors: int, near:
         residual_must=float(residual[must].max()) if must.any() else 0.0,
         residual_may=float(residual[may].max()) if may.any() else 0.0,
     )
+
+
+def composite_reference(gaussians, w2c, intrinsics, contributors: np.ndarray, order: np.ndarray,
+                        near: float = 0.2) -> ReferenceRender:
+    """Blend a fixed contributor set at pose ``w2c`` (float64): every pixel's ``contributors`` [H, W, N] (chosen
+    elsewhere, e.g. :func:`render_reference`'s at another pose), front to back in ``order`` (slot indices), with
+    the alphas, centres and depths of ``w2c`` and no threshold or stop rule: what compositing a stale selection
+    means. Only the images and ``transmittance`` are filled in."""
+    p = project(gaussians, w2c, intrinsics, near)
+    height, width = int(intrinsics.height), int(intrinsics.width)
+    rows, cols = np.meshgrid(np.arange(height, dtype=np.float64), np.arange(width, dtype=np.float64), indexing="ij")
+    trans = np.ones((height, width))
+    color, silhouette = np.zeros((height, width, 3)), np.zeros((height, width))
+    depth, depth_sq = np.zeros((height, width)), np.zeros((height, width))
+    for k in order:
+        dx, dy = cols - p.uv[k, 0], rows - p.uv[k, 1]
+        a, b, c = p.conic[k, 0, 0], p.conic[k, 0, 1], p.conic[k, 1, 1]
+        alpha = np.minimum(ALPHA_MAX, p.opacity[k] * np.exp(-0.5 * (a * dx * dx + 2.0 * b * dx * dy + c * dy * dy)))
+        w = np.where(contributors[:, :, k], alpha * trans, 0.0)
+        color += w[..., None] * p.rgb[k]
+        silhouette += w
+        depth += w * p.z[k]
+        depth_sq += w * p.z[k] ** 2
+        trans = np.where(contributors[:, :, k], trans * (1.0 - alpha), trans)
+    empty = np.zeros((height, width, 0), bool)
+    return ReferenceRender(color=color, depth=depth, silhouette=silhouette, depth_sq=depth_sq, transmittance=trans,
+                           contributors=contributors, clamped=empty, candidates=empty, count=contributors.sum(-1),
+                           num_candidates=np.zeros((height, width), np.int64), stopped=np.zeros((height, width), bool),
+                           cut=np.zeros((height, width), bool), ambiguous=np.zeros((height, width), bool),
+                           projected=p, order=order)
