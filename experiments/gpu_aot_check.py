@@ -20,6 +20,16 @@ block (XLA's thunk sequence), its PTX size and ``ptxas -v``'s registers per thre
 theoretical occupancy these allow on an SM 9.0 GPU. The executables are serialized to ``OUT/<program>.xla`` and the
 Pallas kernels' PTX kept in ``OUT/ptx/``.
 
+Per program also its cost on paper (:func:`program_costs`): XLA's cost analysis of the optimized HLO (flops,
+transcendentals, bytes accessed), what it cannot see, estimated (the Pallas kernels, a ``-1`` each to XLA: their
+operands read and results written once, their loop bodies' flops counted from :mod:`gsjax.raster.pallas`; the sorts:
+one pass to XLA, as many passes as the compiled sort launches kernels), and the roofline floor of each count on an
+H100/H200 (:data:`PEAK`, :func:`roofline`). XLA counts a while loop's body once and adds up both branches of a
+conditional: the 1200x680 programs' checkpointed compositing batches and keyframe branches are not what one iteration
+runs. ``--roofline PATH`` therefore also compiles the tracking iteration's stages apart, each without loops or
+branches (:func:`track_stages`: projection, binning, the selection walk, the compositing forward and backward, with
+the loss), and writes the programs' and stages' floors to PATH.
+
 ``--run`` (on a GPU): each serialized executable is loaded back onto the device and run on the benchmark's room map,
 and its outputs are compared with ``jax.jit`` of the same function on that device: the ahead-of-time path and the
 usual one, checked as one (``experiments/gpu_check.sh`` does this).
@@ -36,6 +46,7 @@ import os
 import pickle
 import re
 import shutil
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -73,6 +84,17 @@ SM90 = dict(registers=65536, threads=2048, blocks=32, shared_bytes=233472, regis
 
 THUNK = re.compile(r"kCustomKernel\s+\[[^\]]*\]\s+(?P<name>\S+) grid: \[(?P<grid>[\d, ]+)\] "
                    r"threads: \[(?P<threads>[\d, ]+)\]\s+shared_memory: (?P<shared>\d+) bytes")
+# An H100 SXM's datasheet peaks: fp32 FLOP/s without tensor cores, HBM bytes/s (an H200: the same FLOP/s, 4.8 TB/s).
+PEAK = dict(flops=67e12, bandwidth=3.35e12)
+TRACK_GOAL_MS = 3.0  # the tracking iteration's time goal at 1200x680
+# The Pallas kernels' loop bodies in float operations (and exponentials) per unit of :func:`pallas_units`, counted
+# from gsjax.raster.pallas: the walk's alpha test (13 with the exp), transmittance update and the two comparisons per
+# (list entry, pixel); the blend of colour, depth, silhouette, depth^2 per (slot, pixel); its backward pass (the
+# replay of the transmittance, 2, and the suffix recurrence with the five gradients, 25).
+PALLAS_FLOPS = {"_walk_kernel": (17, 1), "_composite_kernel": (14, 0), "_composite_bwd_kernel": (27, 0)}
+DTYPE_BYTES = dict(pred=1, s8=1, u8=1, s16=2, u16=2, f16=2, bf16=2, s32=4, u32=4, f32=4, s64=8, u64=8, f64=8)
+HLO_ARRAY = re.compile(r"\b(?P<dtype>pred|[suf]\d+|bf16)\[(?P<dims>[\d,]*)\]")
+HLO_INSTRUCTION = re.compile(r"^\s*(?:ROOT )?%(?P<name>\S+) = (?P<shape>.*?) (?P<op>[a-z][\w-]*)\(")
 PTXAS_FUNCTION = re.compile(r"Compiling entry function '(?P<name>[^']+)'")
 PTXAS_FRAME = re.compile(r"(?P<stack>\d+) bytes stack frame, (?P<spill_stores>\d+) bytes spill stores, "
                          r"(?P<spill_loads>\d+) bytes spill loads")
@@ -118,6 +140,81 @@ def occupancy(threads: int, registers: int, shared_bytes: int, sm: dict = SM90) 
     blocks = min(limits.values())
     return dict(blocks_per_sm=blocks, limited_by=min(limits, key=limits.get),
                 occupancy=blocks * warps * 32 / sm["threads"])
+
+
+def roofline(flops: float, bytes_accessed: float, peak: dict = PEAK) -> dict:
+    """Time floor (ms) of a program of ``flops`` float operations and ``bytes_accessed`` bytes of memory traffic on a
+    device of ``peak`` FLOP/s and bytes/s: each count's own floor, the larger, and which bounds it."""
+    compute_ms, memory_ms = 1e3 * flops / peak["flops"], 1e3 * bytes_accessed / peak["bandwidth"]
+    return dict(compute_ms=compute_ms, memory_ms=memory_ms, floor_ms=max(compute_ms, memory_ms),
+                bound="memory" if memory_ms >= compute_ms else "compute")
+
+
+def hlo_arrays(shape: str) -> list[tuple[int, ...]]:
+    """The array shapes of an HLO shape string (one, or a tuple's), bytes per element last: [(dims..., bytes)]."""
+    return [(*(int(d) for d in m["dims"].split(",") if d), DTYPE_BYTES[m["dtype"]]) for m in HLO_ARRAY.finditer(shape)]
+
+
+def pallas_units(kernel: str, operands: list[tuple[int, ...]]) -> int:
+    """Loop-body runs of a Pallas kernel of :data:`PALLAS_FLOPS` from its operand shapes (``hlo_arrays``): (list
+    entry, pixel) pairs of the walk, every entry of every list walked (an upper bound: it stops where all pixels of
+    a tile have), (slot, pixel) pairs of the compositing."""
+    if kernel == "_walk_kernel":  # operands: count [B], six features [B, M], pixel u, v [B, T^2]
+        return math.prod(operands[1][:-1]) * operands[7][-2]
+    return math.prod(operands[0][:-1])  # alpha [K, P]
+
+
+def hlo_inventory(text: str, launches: dict[str, int]) -> dict:
+    """What XLA's cost analysis cannot see in an optimized HLO module ``text``, estimated: per Pallas call (target
+    ``__gpu$xla.gpu.triton``) its operand and result bytes and loop-body flops (:data:`PALLAS_FLOPS`); per sort its
+    bytes and kernel ``launches`` (by thunk name); and the while loops' trip counts and the conditionals, which it
+    counts once and adds up."""
+    pallas, sorts, trips, conditionals = [], [], [], 0
+    for line in text.splitlines():
+        if not (m := HLO_INSTRUCTION.match(line)):
+            continue
+        if m["op"] == "custom-call" and "__gpu$xla.gpu.triton" in line:
+            kernel = re.search(r'name = "(\w+)"', line)[1]
+            operands = hlo_arrays(re.search(r"operand_layout_constraints=\{(.*?)\}, \w+=", line)[1])
+            size = sum(math.prod(a) for a in operands + hlo_arrays(m["shape"]))
+            flops, exps = (n * pallas_units(kernel, operands) for n in PALLAS_FLOPS.get(kernel, (0, 0)))
+            pallas.append(dict(kernel=kernel, bytes=size, flops=flops, transcendentals=exps))
+        elif m["op"] == "sort":
+            sorts.append(dict(name=m["name"], bytes=sum(math.prod(a) for a in hlo_arrays(m["shape"])),
+                              launches=launches.get(m["name"].replace(".", "_"), 0)))
+        elif m["op"] == "while":
+            trips.append(int(t[1]) if (t := re.search(r'known_trip_count":\{"n":"(\d+)"', line)) else None)
+        conditionals += m["op"] == "conditional"
+    return dict(pallas_calls=pallas, sorts=sorts, while_trip_counts=trips, conditionals=conditionals)
+
+
+def xla_cost_analysis(compiled) -> dict[str, float]:
+    """XLA's cost analysis (HloCostAnalysis) of a compiled program. A deviceless GPU executable has none
+    (GetCostAnalysis: UNIMPLEMENTED); the same analysis then runs on the CPU client, over its optimized HLO."""
+    import jax
+    from jax._src.lib import _jax
+
+    if (found := compiled.cost_analysis()) is not None:
+        return found
+    modules = compiled.runtime_executable().hlo_modules()
+    assert len(modules) == 1, "one HLO module per program"
+    return _jax.hlo_module_cost_analysis(jax.devices("cpu")[0].client, modules[0])
+
+
+def program_costs(xla: dict[str, float], inventory: dict) -> dict:
+    """XLA's counts (``xla``, :func:`xla_cost_analysis`), the estimates of :func:`hlo_inventory` and the roofline of
+    each: ``xla`` counts a Pallas call as -1 flops and -1 bytes (none are added back here) and a sort as one pass;
+    ``estimate`` adds the Pallas calls' flops and bytes and the sorts' other passes (a read and a write of all their
+    operands per launch)."""
+    pallas = {k: sum(call[k] for call in inventory["pallas_calls"]) for k in ("flops", "bytes", "transcendentals")}
+    sort_passes = sum(2 * s["bytes"] * max(s["launches"] - 1, 0) for s in inventory["sorts"])
+    estimate = dict(flops=xla["flops"] + pallas["flops"],
+                    transcendentals=xla.get("transcendentals", 0.0) + pallas["transcendentals"],
+                    bytes=xla["bytes accessed"] + pallas["bytes"] + sort_passes,
+                    pallas_bytes=pallas["bytes"], sort_extra_pass_bytes=sort_passes)
+    return dict(cost_analysis=xla, inventory=inventory,
+                roofline_xla=roofline(xla["flops"], xla["bytes accessed"]), estimate=estimate,
+                roofline=roofline(estimate["flops"], estimate["bytes"]))
 
 
 def kernel_name(entry: str) -> str:

@@ -35,24 +35,51 @@ def gaussian_window(size: int = WINDOW_SIZE, sigma: float = WINDOW_SIGMA) -> np.
     return g / g.sum()
 
 
+# Up to this side (px), blurs are products with banded [H', H] and [W', W] matrices: XLA:CPU runs a small matrix
+# product far faster than an 11-tap convolution (80x60 SSIM with its gradient: 0.9 ms against 13 ms); beyond it the
+# band's zeros would cost more than the convolution.
+MATMUL_BLUR_MAX_SIDE = 256
+
+
+def _band(size: int, pad: int) -> np.ndarray:
+    """[size + 2 pad - 10, size] float64: row i holds the window centred on input pixel i - pad + 5, taps beyond the
+    image dropped (zero padding)."""
+    window = gaussian_window()
+    rows = size + 2 * pad - (WINDOW_SIZE - 1)
+    band = np.zeros((rows, size))
+    for tap, weight in enumerate(window):
+        i = np.arange(rows)
+        j = i + tap - pad
+        inside = (j >= 0) & (j < size)
+        band[i[inside], j[inside]] = weight
+    return band
+
+
 def _blur(image: jax.Array, pad: int) -> jax.Array:
-    """Separable 11x11 Gaussian blur of [H, W, C] per channel; ``pad`` zero pixels on each side (0 = 'valid')."""
-    window = jnp.asarray(gaussian_window(), image.dtype)
-    x = jnp.moveaxis(image, -1, 0)[:, None]  # [C, 1, H, W]: channels as the batch (depthwise)
-    conv = jax.lax.conv_general_dilated
+    """Separable 11x11 Gaussian blur of [..., H, W, C] per channel; ``pad`` zero pixels on each side (0 = 'valid')."""
     hp = jax.lax.Precision.HIGHEST
+    height, width = image.shape[-3:-1]
+    if max(height, width) <= MATMUL_BLUR_MAX_SIDE:
+        rows, cols = (jnp.asarray(_band(n, pad), image.dtype) for n in (height, width))
+        x = jnp.einsum("ih,...hwc->...iwc", rows, image, precision=hp)
+        return jnp.einsum("jw,...iwc->...ijc", cols, x, precision=hp)
+    window = jnp.asarray(gaussian_window(), image.dtype)
+    batch = image.shape[:-3]
+    x = jnp.moveaxis(image.reshape((-1,) + image.shape[-3:]), -1, 1).reshape(-1, 1, height, width)  # depthwise
+    conv = jax.lax.conv_general_dilated
     x = conv(x, window.reshape(1, 1, -1, 1), (1, 1), [(pad, pad), (0, 0)], precision=hp)
     x = conv(x, window.reshape(1, 1, 1, -1), (1, 1), [(0, 0), (pad, pad)], precision=hp)
-    return jnp.moveaxis(x[:, 0], 0, -1)
+    x = jnp.moveaxis(x.reshape(-1, image.shape[-1], *x.shape[-2:]), 1, -1)
+    return x.reshape(batch + x.shape[1:])
 
 
 def _ssim_maps(a: jax.Array, b: jax.Array, pad: int) -> tuple[jax.Array, jax.Array]:
     """(SSIM map, contrast-structure map) [H', W', C], Wang et al. 2004 with alpha = beta = gamma = 1, unclipped."""
     c1, c2 = K1**2, K2**2
-    mu_a, mu_b = _blur(a, pad), _blur(b, pad)
-    var_a = _blur(a * a, pad) - mu_a * mu_a
-    var_b = _blur(b * b, pad) - mu_b * mu_b
-    cov = _blur(a * b, pad) - mu_a * mu_b
+    mu_a, mu_b, aa, bb, ab = _blur(jnp.stack([a, b, a * a, b * b, a * b]), pad)  # one blur of all five
+    var_a = aa - mu_a * mu_a
+    var_b = bb - mu_b * mu_b
+    cov = ab - mu_a * mu_b
     cs = (2.0 * cov + c2) / (var_a + var_b + c2)
     luminance = (2.0 * mu_a * mu_b + c1) / (mu_a * mu_a + mu_b * mu_b + c1)
     return luminance * cs, cs

@@ -296,7 +296,13 @@ def select_slots(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics,
     tracker uses it to skip binning and the walk on most iterations (``tracking.reselect_every``).
     """
     check_render_inputs(gaussians, w2c, intrinsics, settings)
-    return _select(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, settings)
+    return _select(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, _selection_settings(settings))
+
+
+def _selection_settings(settings: RasterSettings) -> RasterSettings:
+    """The settings with what the selection does not read set alike, so that renders differing only there share
+    one traced selection (tracing it is a large part of tracing a SLAM step)."""
+    return dataclasses.replace(settings, pose_only=False, slots_per_batch=RasterSettings.slots_per_batch)
 
 
 def _as_float32(gaussians: Gaussians) -> Gaussians:
@@ -368,7 +374,7 @@ def _render(
     gaussians = _as_float32(gaussians)
     grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
     if selection is None:
-        selection = _select(gaussians, w2c, intrinsics, settings)
+        selection = _select(gaussians, w2c, intrinsics, _selection_settings(settings))
     in_image = grid.in_image()
     with jax.named_scope("composite"):
         pixels = grid.pixel_coords().reshape(-1, 2)

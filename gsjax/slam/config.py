@@ -185,6 +185,8 @@ class MappingConfig:
       skip_step_at_prune: reproduce SplaTAM's quirk of skipping the Adam step at pruning iterations.
       overlap_samples: depth pixels sampled to measure keyframe overlap; ``overlap_margin``: border (px) a
         projected sample must clear to count as inside a keyframe.
+      every: 1 (SplaTAM) maps every frame; E > 1 maps only frames t with t % E == 0, keyframes and the first frame
+        with depth (the others are tracked and densified, their new Gaussians optimised by the next mapping).
       reselect_every: 1 (SplaTAM) chooses every pixel's contributors at each iteration, on the map as it is then;
         R > 1 chooses them for every view of the window at iterations 0, R, 2R, ... (counted over strided and full
         iterations) and composites those slots in between, as the map changes (render and gradient exact for those
@@ -210,9 +212,11 @@ class MappingConfig:
     overlap_samples: int = static(1600)
     overlap_margin: float = 20.0
     reselect_every: int = static(1)
+    every: int = static(1)
 
     def __post_init__(self):
         _check_positive_int("mapping", "iters", self.iters)
+        _check_positive_int("mapping", "every", self.every)
         _check_positive_int("mapping", "reselect_every", self.reselect_every)
         _check_positive_int("mapping", "strided_iters", self.strided_iters, 0)
         _check_positive_int("mapping", "window_size", self.window_size, 2)

@@ -111,7 +111,8 @@ def map_window(
 
     def select_all(params, active):  # every window view's slots on the map as it is now
         g = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
-        return jax.vmap(lambda w2c: select_slots(g, w2c, intrinsics, config.raster))(views.w2c)
+        # a loop, not vmap: the selection is traced once for the whole step, and batching its trace would redo it
+        return jax.lax.map(lambda w2c: select_slots(g, w2c, intrinsics, config.raster), views.w2c)
 
     def iteration(view_at, carry, inputs):
         params, active, opt_state, selections = carry

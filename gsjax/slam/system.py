@@ -29,7 +29,7 @@ from gsjax.raster.cbknn import motion_from_poses
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import densify
 from gsjax.slam.keyframes import select_window
-from gsjax.slam.mapping import gather_window_frames, map_window
+from gsjax.slam.mapping import MapResult, gather_window_frames, map_window
 from gsjax.slam.noise import NOISE_STREAM, add_depth_noise, perturb_map, perturb_stored_map
 from gsjax.slam.state import SlamState
 from gsjax.slam.tracking import GuardedTrack, TrackingProblem, track_guarded
@@ -41,7 +41,8 @@ class StepOutputs(NamedTuple):
 
     Attributes:
       w2c: [4, 4] estimated world-to-camera pose; tracking_loss: [] loss at that pose (0 at frame 0);
-      mapping_loss: [] last mapping iteration's loss; num_gaussians: [] active after the step;
+      mapping_loss: [] last mapping iteration's loss (0 on a frame not mapped, ``mapping.every``);
+      num_gaussians: [] active after the step;
       added, dropped: [] Gaussians densified / not inserted for lack of capacity; keyframe: [] bool;
       gamma: [] motion used by CB-KNN; nonfinite: [] skipped tracking iterations; truncated: [] bool, the
       densification render was truncated by the rasterizer's capacities; truncation_residual: [] the largest
@@ -185,7 +186,14 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         window = select_window(key_window, state.keyframes, frame.depth, w2c, intrinsics, config.mapping,
                                config.cbknn)
         views = gather_window_frames(window, state.keyframes, frame.color, frame.depth, w2c, gamma, keyframe)
-        mapped = map_window(key_map, gaussians, views, intrinsics, config, scene_radius, first_map=~started)
+        def map_now():
+            return map_window(key_map, gaussians, views, intrinsics, config, scene_radius, first_map=~started)
+
+        if config.mapping.every > 1:
+            mapped = jax.lax.cond(~started | keyframe | (t % config.mapping.every == 0), map_now,
+                                  lambda: MapResult(gaussians, jnp.float32(0.0), jnp.int32(0)))
+        else:
+            mapped = map_now()
         final_map, freed_after = mapped.gaussians.without_nonfinite()
         freed = freed_before + freed_after
 

@@ -28,7 +28,6 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import optax
-import optimistix as optx
 
 from gsjax.camera import Intrinsics, camera_center, rotation_angle, se3_exp
 from gsjax.gaussians import Gaussians
@@ -229,6 +228,8 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
 def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided=None) -> TrackResult:
     """Levenberg-Marquardt on ``full`` = (view_at, colour, depth) from the solution of ``strided`` (the same on
     every other pixel, at most ``tracking.strided_iters`` steps) when given."""
+    import optimistix as optx  # 0.3 s to import (equinox, lineax): only the LM tracker needs it
+
     cfg = config.tracking
     solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)
 

@@ -118,6 +118,15 @@ def test_ssim_splatam_matches_zero_padded_reference():
     assert abs(expected - ssim_maps_ref(a, b)[0].mean()) > 1e-3  # the padding matters at this size
 
 
+def test_ssim_splatam_matches_the_reference_beyond_the_matrix_blur_size():
+    """Past MATMUL_BLUR_MAX_SIDE the blurs are convolutions; the same SSIM either way."""
+    from gsjax.eval.image import MATMUL_BLUR_MAX_SIDE
+
+    a, b = image_pair((20, MATMUL_BLUR_MAX_SIDE + 4, 3), 0.08)
+    assert float(ssim_splatam(a, b)) == pytest.approx(ssim_maps_ref(a, b, pad=5)[0].mean(), abs=1e-5)
+    assert float(ssim(a, b)) == pytest.approx(ssim_maps_ref(a, b)[0].mean(), abs=1e-5)
+
+
 def test_ssim_splatam_gradient_matches_finite_differences():
     with jax.enable_x64(True):
         a, b = image_pair((14, 12, 3), 0.1, seed=3)
