@@ -89,9 +89,12 @@ def gather(table: Slots, ids: jax.Array) -> Slots:
 
     One gather per column: on XLA:CPU a stacked [F, N] table gathered at once made the render's fwd+bwd 1.5-2x
     slower (bench_raster, 80x60 and 160x120; the frame's step unchanged), as a packed feature axis does elsewhere.
+    Empty slots hold zeros (their ``valid`` is False, so their alpha is 0 whatever they hold).
     """
-    index = jnp.maximum(ids, 0)
-    return Slots(*(column[index] for column in table[:-1]), valid=ids >= 0)
+    # Empty slots read past the end (filled with 0), so the backward pass drops them: clamped to Gaussian 0, half of
+    # all slots would add into that one entry, and on XLA:CPU such a hot index makes each scatter-add ~5x slower.
+    index = jnp.where(ids >= 0, ids, table.u.shape[0])
+    return Slots(*(jnp.take(column, index, mode="fill", fill_value=0) for column in table[:-1]), valid=ids >= 0)
 
 
 def slot_alpha(slots: Slots, pixels: jax.Array, u: jax.Array | None = None, v: jax.Array | None = None) -> jax.Array:
