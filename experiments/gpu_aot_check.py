@@ -24,11 +24,11 @@ Per program also its cost on paper (:func:`program_costs`): XLA's cost analysis 
 transcendentals, bytes accessed), what it cannot see, estimated (the Pallas kernels, a ``-1`` each to XLA: their
 operands read and results written once, their loop bodies' flops counted from :mod:`gsjax.raster.pallas`; the sorts:
 one pass to XLA, as many passes as the compiled sort launches kernels), and the roofline floor of each count on an
-H100/H200 (:data:`PEAK`, :func:`roofline`). XLA counts a while loop's body once and adds up both branches of a
-conditional: the 1200x680 programs' checkpointed compositing batches and keyframe branches are not what one iteration
-runs. ``--roofline PATH`` therefore also compiles the tracking iteration's stages apart, each without loops or
-branches (:func:`track_stages`: projection, binning, the selection walk, the compositing forward and backward, with
-the loss), and writes the programs' and stages' floors to PATH.
+H100/H200 (:data:`PEAK`, :func:`roofline`). XLA counts a while loop's body once and a conditional's flops over
+more than the branch that runs: the 1200x680 programs' counts (three checkpointed compositing batches, both renders
+of the keyframe flag) are not one iteration's. ``--roofline PATH`` therefore also compiles the tracking iteration's
+stages apart, each without loops or branches (:func:`track_stages`: projection, binning, the selection walk, the
+compositing forward and backward, with the loss), and writes the programs' and stages' floors to PATH.
 
 ``--run`` (on a GPU): each serialized executable is loaded back onto the device and run on the benchmark's room map,
 and its outputs are compared with ``jax.jit`` of the same function on that device: the ahead-of-time path and the
@@ -45,12 +45,13 @@ import math
 import os
 import pickle
 import re
-import shutil
 import shlex
+import shutil
 import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 
 # An SM 9.0 GPU with 132 SMs (H100 SXM, H200): the limits the compiler plans with. Runtime 13.0: the CUDA plugin's.
@@ -167,8 +168,8 @@ def pallas_units(kernel: str, operands: list[tuple[int, ...]]) -> int:
 def hlo_inventory(text: str, launches: dict[str, int]) -> dict:
     """What XLA's cost analysis cannot see in an optimized HLO module ``text``, estimated: per Pallas call (target
     ``__gpu$xla.gpu.triton``) its operand and result bytes and loop-body flops (:data:`PALLAS_FLOPS`); per sort its
-    bytes and kernel ``launches`` (by thunk name); and the while loops' trip counts and the conditionals, which it
-    counts once and adds up."""
+    bytes and kernel ``launches`` (by thunk name); the while loops' trip counts and the number of conditionals (XLA
+    counts a loop's body once, a conditional's flops over more than the branch that runs)."""
     pallas, sorts, trips, conditionals = [], [], [], 0
     for line in text.splitlines():
         if not (m := HLO_INSTRUCTION.match(line)):
@@ -284,6 +285,14 @@ def captured_stderr(path: Path):
             os.close(saved)
 
 
+def paper_config(width: int):
+    """The ``replica`` preset in ``paper`` mode for images ``width`` px wide, rendering with the Pallas kernels."""
+    from gsjax.slam.presets import preset, with_cbknn_mode
+
+    config = with_cbknn_mode(preset("replica", width), "paper")
+    return dataclasses.replace(config, raster=dataclasses.replace(config.raster, backend="pallas"))
+
+
 def programs():
     """name -> (function, example arguments as numpy/jax arrays on the host): the three programs of the docstring."""
     import jax
@@ -294,17 +303,12 @@ def programs():
     from gsjax.gaussians import Gaussians
     from gsjax.raster import render
     from gsjax.slam.losses import mapping_loss
-    from gsjax.slam.presets import preset, with_cbknn_mode
     from gsjax.slam.tracking import TrackingProblem, tracking_objective
     from gsjax.slam.views import render_view
 
-    def config_for(width):
-        config = with_cbknn_mode(preset("replica", width), "paper")
-        return dataclasses.replace(config, raster=dataclasses.replace(config.raster, backend="pallas"))
-
     def render_program():
         g, w2c, intrinsics = bench_map(640, 480)
-        settings = config_for(640).raster
+        settings = paper_config(640).raster
 
         def render_fwd_bwd(fields, active, w2c, delta, weights):
             def loss(fields, delta):
@@ -318,7 +322,7 @@ def programs():
 
     def slam_programs():
         g, w2c, intrinsics = bench_map(1200, 680)
-        config = config_for(1200)
+        config = paper_config(1200)
         canonical = dataclasses.replace(config.raster, backend="xla")
         observed = jax.jit(lambda g, w2c: render(g, w2c, intrinsics, canonical))(g, w2c)
         start = se3_exp(jnp.asarray([0.01, 0.0, 0.0, 0.0, 0.0087, 0.0], jnp.float32)) @ w2c
@@ -346,6 +350,81 @@ def programs():
     return {"render_fwd_bwd_640x480": render_program(), **slam_programs()}
 
 
+def track_stages(example) -> dict:
+    """name -> (function, example arguments, abstract where not on the host): the tracking iteration of
+    :func:`programs` (its ``example``) in stages, each a program without loops or branches: ``project``, ``bin`` (its
+    two sorts), ``walk`` (the tile lists' gathers and the selection's Pallas kernel), and per render, canonical and
+    CB-KNN (``_cbknn``, a keyframe), the compositing at that selection through the tracking loss: its value
+    (``composite_fwd``) and its value and gradient (``composite_fwd_bwd``), in one batch of all slots. (The program
+    composites in checkpointed batches: the forward, then the forward again and the backward pass.)"""
+    import jax
+    import jax.numpy as jnp
+
+    from gsjax.data.room import room_intrinsics
+    from gsjax.raster.binning import TileGrid, bin_gaussians
+    from gsjax.raster.project import project
+    from gsjax.raster.render import SlotSelection
+    from gsjax.raster.select import select_contributors
+    from gsjax.slam.tracking import TrackingProblem, tracking_objective
+
+    g, color, depth, start, _, gamma, delta = example
+    intrinsics = room_intrinsics(*depth.shape)
+    config = paper_config(intrinsics.width)
+    raster = config.raster
+    grid = TileGrid.for_image(intrinsics.height, intrinsics.width, raster.tile_size)
+    slots = raster.max_contributors * grid.num_tiles * grid.pixels_per_tile
+    one_batch = dataclasses.replace(config, raster=dataclasses.replace(raster, slots_per_batch=slots))
+
+    def project_stage(g, w2c):
+        return project(g, w2c, intrinsics, raster.near, raster.dilation)
+
+    def bin_stage(projected):
+        return bin_gaussians(projected.uv, projected.extent, projected.depth, projected.visible, grid,
+                             raster.tile_capacity, raster.intersection_capacity(g.capacity, grid))
+
+    def walk_stage(projected, tiles):
+        return select_contributors(projected, tiles, grid, raster.max_contributors, raster.tiles_per_batch, True)
+
+    projected = jax.eval_shape(project_stage, g, start)
+    tiles = jax.eval_shape(bin_stage, projected)
+    count = jax.ShapeDtypeStruct((), jnp.int32)
+    selection = SlotSelection(*jax.eval_shape(walk_stage, projected, tiles), count, count)
+    stages = dict(project=(project_stage, (g, start)), bin=(bin_stage, (projected,)),
+                  walk=(walk_stage, (projected, tiles)))
+    for suffix, keyframe in (("", False), ("_cbknn", True)):
+        def loss(delta, selection, g, color, depth, start, gamma, keyframe=keyframe):
+            problem = TrackingProblem(g, color, depth, start, intrinsics, keyframe, gamma)  # a constant branch
+            return tracking_objective(problem, one_batch).loss(delta, selection)
+
+        arguments = (delta, selection, g, color, depth, start, gamma)
+        stages[f"composite_fwd{suffix}"] = (loss, arguments)
+        stages[f"composite_fwd_bwd{suffix}"] = (jax.value_and_grad(loss), arguments)
+    return stages
+
+
+def roofline_summary(cost: dict, goal_ms: float | None = None) -> dict:
+    """The roofline figures of :func:`program_costs`' result ``cost``, with the floor's share of ``goal_ms``."""
+    estimate, inventory = cost["estimate"], cost["inventory"]
+    xla = cost["cost_analysis"]
+    summary = dict(estimate, **cost["roofline"],
+                   xla=dict(flops=xla["flops"], bytes=xla["bytes accessed"],
+                            transcendentals=xla.get("transcendentals", 0.0), **cost["roofline_xla"]),
+                   pallas_calls=len(inventory["pallas_calls"]),
+                   sort_launches=[s["launches"] for s in inventory["sorts"]],
+                   while_trip_counts=inventory["while_trip_counts"], conditionals=inventory["conditionals"])
+    if goal_ms:
+        summary["floor_vs_goal"] = summary["floor_ms"] / goal_ms
+    return summary
+
+
+def iteration_from_stages(stages: dict, names: list[str], goal_ms: float) -> dict:
+    """The stages ``names`` of :func:`roofline_summary`s ``stages`` run one after another: their counts and floors
+    added, the stage with the largest floor, and the total's share of ``goal_ms``."""
+    total = {k: sum(stages[n][k] for n in names) for k in ("flops", "bytes", "compute_ms", "memory_ms", "floor_ms")}
+    return dict(total, stages=names, bounded_by=max(names, key=lambda n: stages[n]["floor_ms"]),
+                floor_vs_goal=total["floor_ms"] / goal_ms)
+
+
 def compare(a, b) -> float:
     """Largest absolute difference over the leaves of two pytrees of arrays, relative to the largest magnitude."""
     import jax
@@ -363,6 +442,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("outputs/gpu_aot"))
     parser.add_argument("--programs", default="", help="comma-separated subset of the program names")
     parser.add_argument("--keep-dump", action="store_true", help="keep XLA's whole dump (OUT/xla_dump, ~100 MB)")
+    parser.add_argument("--roofline", type=Path,
+                        help="also compile the tracking iteration's stages; write the programs' and stages' roofline "
+                             "(JSON) here")
     parser.add_argument("--run", action="store_true",
                         help="on a GPU: load each serialized executable and compare its outputs with jax.jit's")
     args = parser.parse_args(argv)
@@ -390,13 +472,12 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     mesh = topologies.make_mesh(topology, (1,), ("gpu",))
     replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
-    chosen = [p for p in args.programs.split(",") if p]
-    for name, (fn, example) in programs().items():
-        if chosen and name not in chosen:
-            continue
+
+    def compile_for_gpu(name, fn, example, report):
+        """``fn`` on ``example`` compiled for the target (None on error, in ``report`` with the compile time and the
+        compiler's warnings) and its GPU kernels (thunks) and PTX; the program's costs (:func:`program_costs`)."""
         fn.__name__ = fn.__qualname__ = name  # the module's name in the dump: jit_<name>
         abstract = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=replicated), example)
-        report: dict = {}
         log = args.out / f"{name}.log"
         t0 = time.perf_counter()
         try:
@@ -407,11 +488,24 @@ def main(argv: list[str] | None = None) -> int:
         report["compile_s"] = round(time.perf_counter() - t0, 2)
         report["compiler_warnings"] = sorted({line.split("] ", 1)[-1].strip() for line in log.read_text().splitlines()
                                               if line[:1] in "WE" and "] " in line})
-        if "error" not in report:
+        if "error" in report:
+            return None, [], {}
+        thunks, ptx = dumped(dump, f"jit_{name}")
+        launches = Counter(kernel_name(thunk["name"]) for thunk in thunks)
+        report["cost"] = program_costs(xla_cost_analysis(compiled), hlo_inventory(compiled.as_text(), launches))
+        return compiled, thunks, ptx
+
+    chosen = [p for p in args.programs.split(",") if p]
+    examples = programs()
+    for name, (fn, example) in examples.items():
+        if chosen and name not in chosen:
+            continue
+        report: dict = {}
+        compiled, thunks, ptx = compile_for_gpu(name, fn, example, report)
+        if compiled is not None:
             memory = compiled.memory_analysis()
             report["memory_mib"] = {k: round(getattr(memory, f"{k}_size_in_bytes") / 2**20, 2)
                                     for k in ("argument", "output", "temp", "alias")}
-            thunks, ptx = dumped(dump, f"jit_{name}")
             report["gpu_kernels"] = len(thunks)
             report["pallas_kernels"] = kernel_report(thunks, ptx, kernels, ptxas)
             (args.out / "ptx").mkdir(exist_ok=True)
@@ -425,11 +519,45 @@ def main(argv: list[str] | None = None) -> int:
                 report["run"] = run_on_device(fn, example, payload)
         result["programs"][name] = report
         print(name, json.dumps(report, indent=1), flush=True)
+    if args.roofline:
+        result["track_stages"] = {}
+        for stage, (fn, example) in track_stages(examples["track_iteration_1200x680"][1]).items():
+            report = result["track_stages"][stage] = {}
+            compile_for_gpu(f"track_1200x680_{stage}", fn, example, report)
+            print(stage, json.dumps(report["cost"]["roofline"] if "cost" in report else report), flush=True)
+        write_roofline(args.roofline, result, shlex.join([os.path.relpath(sys.executable), os.path.relpath(__file__),
+                                                          *(sys.argv[1:] if argv is None else argv)]))
     (args.out / "gpu_aot.json").write_text(json.dumps(result, indent=1))
     if not args.keep_dump:
         shutil.rmtree(dump, ignore_errors=True)
     print(f"wrote {args.out / 'gpu_aot.json'} and the Pallas kernels' PTX in {args.out / 'ptx'}")
-    return 0 if all("error" not in r and "error" not in r.get("run", {}) for r in result["programs"].values()) else 1
+    reports = [*result["programs"].values(), *result.get("track_stages", {}).values()]
+    return 0 if all("error" not in r and "error" not in r.get("run", {}) for r in reports) else 1
+
+
+def write_roofline(path: Path, result: dict, command: str) -> None:
+    """The roofline of ``result``'s programs and tracking stages (:func:`roofline_summary`) and of a tracking
+    iteration from its stages (:func:`iteration_from_stages`), canonical and keyframe, as the program composites (the
+    forward, then the forward again with the backward pass) and in one batch (the forward once), to ``path`` (JSON)."""
+    goal = {"track_iteration_1200x680": TRACK_GOAL_MS}
+    programs = {n: roofline_summary(r["cost"], goal.get(n)) for n, r in result["programs"].items() if "cost" in r}
+    stages = {n: roofline_summary(r["cost"]) for n, r in result["track_stages"].items() if "cost" in r}
+    iterations = {}
+    for kind, suffix in (("canonical", ""), ("keyframe", "_cbknn")):
+        names = ["project", "bin", "walk", f"composite_fwd{suffix}", f"composite_fwd_bwd{suffix}"]
+        if set(names) <= set(stages):  # as compiled (checkpointed batches), and with the slots kept (one batch)
+            iterations[f"track_iteration_1200x680_{kind}"] = iteration_from_stages(stages, names, TRACK_GOAL_MS)
+            iterations[f"track_iteration_1200x680_{kind}_one_batch"] = iteration_from_stages(
+                stages, names[:3] + names[4:], TRACK_GOAL_MS)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(dict(
+        command=command, jax=result["jax"], peak=PEAK, goal_ms=goal,
+        method=("flops, bytes, transcendentals: estimates = XLA's cost analysis of the optimized HLO (xla) + the "
+                "Pallas calls' operand/result bytes and loop-body flops (gsjax.raster.pallas, counted by hand) + the "
+                "sorts' passes beyond XLA's one (a read and a write per kernel launch); floor_ms = max(flops / peak "
+                "flops, bytes / bandwidth); XLA counts a while body once and a conditional's flops over more than one "
+                "branch (both branches' Pallas calls and sorts are counted too): see track_stages"),
+        programs=programs, track_stages=stages, track_iterations_from_stages=iterations), indent=1))
 
 
 def run_on_device(fn, example, payload) -> dict:

@@ -74,6 +74,63 @@ def test_pallas_kernel_rows_are_grouped_by_kernel_with_their_launch_count(tmp_pa
     assert (composite["name"], composite["launches"], composite["ptx_bytes"]) == ("_composite_kernel", 1, None)
 
 
+@pytest.mark.parametrize("flops, nbytes, compute_ms, memory_ms, bound", [
+    (67e9, 3.35e9, 1.0, 1.0, "memory"),  # a tie counts as memory-bound
+    (6.7e9, 6.7e9, 0.1, 2.0, "memory"),
+    (134e9, 0.335e9, 2.0, 0.1, "compute"),
+    (0.0, 0.0, 0.0, 0.0, "memory"),
+])
+def test_roofline_floor_is_the_larger_of_the_compute_and_memory_times(flops, nbytes, compute_ms, memory_ms, bound):
+    found = aot.roofline(flops, nbytes)  # an H100/H200: 67 TFLOP/s fp32, 3.35 TB/s
+    assert found["compute_ms"] == pytest.approx(compute_ms) and found["memory_ms"] == pytest.approx(memory_ms)
+    assert found["floor_ms"] == pytest.approx(max(compute_ms, memory_ms)) and found["bound"] == bound
+    assert aot.roofline(1e12, 1e9, dict(flops=1e12, bandwidth=1e12))["floor_ms"] == pytest.approx(1000.0)
+
+
+# Optimized-HLO lines as XLA 0.10.2 prints them (shapes shrunk, the Triton IR left out).
+HLO = """\
+  %pallas_call.10 = (s32[2,2,4]{2,1,0}, s32[2,3,4]{2,1,0}, s32[2,4]{1,0}, f32[2,4]{1,0}) custom-call(%a, %b), \
+custom_call_target="__gpu$xla.gpu.triton", operand_layout_constraints={s32[2]{0}, f32[2,64]{1,0}, f32[2,64]{1,0}, \
+f32[2,64]{1,0}, f32[2,64]{1,0}, f32[2,64]{1,0}, f32[2,64]{1,0}, f32[2,4]{1,0}, f32[2,4]{1,0}}, \
+api_version=API_VERSION_TYPED_FFI, metadata={op_name="jit(f)/pallas_call"}, backend_config={grid_x = 2 : i32, \
+name = "_walk_kernel", num_warps = 1 : i32}
+  %pallas_call.11 = (f32[8]{0}, f32[8]{0}) custom-call(%c), custom_call_target="__gpu$xla.gpu.triton", \
+operand_layout_constraints={f32[3,8]{1,0}}, api_version=API_VERSION_TYPED_FFI, \
+backend_config={name = "_composite_kernel"}
+  ROOT %sort.8.1 = (s32[10]{0}, s32[10]{0}) sort(%param_0, %iota.8.1), dimensions={0}, to_apply=%region_5.15
+  %while.63 = (s32[], f32[3,8]{1,0}) while(%tuple.262), condition=%c, body=%b, \
+backend_config={"known_trip_count":{"n":"3"},"known_init_step":{"init":"0","step":"1"}}
+  %while.64 = (s32[]) while(%tuple.263), condition=%c, body=%b
+  %cond.69 = (f32[4]{0}) conditional(%smooth.1, %x, %y), true_computation=%t, false_computation=%f
+"""
+
+
+def test_hlo_inventory_sizes_the_pallas_calls_and_sorts_xla_cannot_see():
+    found = aot.hlo_inventory(HLO, {"sort_8_1": 5})
+    walk, composite = found["pallas_calls"]
+    walk_bytes = (2 + 6 * 2 * 64 + 2 * 2 * 4) * 4 + (2 * 2 * 4 + 2 * 3 * 4 + 2 * 4 + 2 * 4) * 4
+    assert walk == dict(kernel="_walk_kernel", bytes=walk_bytes, flops=17 * 2 * 64 * 4, transcendentals=2 * 64 * 4)
+    assert composite == dict(kernel="_composite_kernel", bytes=(3 * 8 + 2 * 8) * 4, flops=14 * 3 * 8, transcendentals=0)
+    assert found["sorts"] == [dict(name="sort.8.1", bytes=80, launches=5)]
+    assert (found["while_trip_counts"], found["conditionals"]) == ([3, None], 1)
+    costs = aot.program_costs({"flops": 100.0, "bytes accessed": 1000.0}, found)
+    estimate = costs["estimate"]
+    assert estimate["flops"] == 100 + walk["flops"] + composite["flops"]
+    assert estimate["sort_extra_pass_bytes"] == 2 * 80 * 4  # four passes beyond XLA's one
+    assert estimate["bytes"] == 1000 + walk_bytes + composite["bytes"] + 2 * 80 * 4
+    assert costs["roofline"] == aot.roofline(estimate["flops"], estimate["bytes"])
+    assert costs["roofline_xla"] == aot.roofline(100.0, 1000.0)
+
+
+def test_an_iteration_from_its_stages_adds_their_floors_and_names_the_largest():
+    stages = {name: dict(flops=f, bytes=b, **aot.roofline(f, b)) for name, f, b in
+              [("bin", 0.0, 6.7e9), ("walk", 67e9, 0.0), ("composite", 0.0, 3.35e9)]}
+    found = aot.iteration_from_stages(stages, ["bin", "walk", "composite"], goal_ms=3.0)
+    assert found["floor_ms"] == pytest.approx(2.0 + 1.0 + 1.0) and found["bounded_by"] == "bin"
+    assert found["floor_vs_goal"] == pytest.approx(4.0 / 3.0)
+    assert found["memory_ms"] == pytest.approx(3.0) and found["compute_ms"] == pytest.approx(1.0)
+
+
 def test_the_gpu_check_collects_the_ahead_of_time_programs_and_their_failure(tmp_path):
     import gpu_check
 
