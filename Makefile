@@ -56,7 +56,7 @@ gpu-aot:
 	[ -f $(AOT_VENV)/.installed ] || { $(PYTHON) -m venv $(AOT_VENV) && $(AOT_VENV)/bin/pip install -q -c constraints.txt \
 	    -e . "jax-cuda13-plugin==$(JAX_PIN)" "jax-cuda13-pjrt==$(JAX_PIN)" "nvidia-cuda-nvcc>=13.0.48,<14" \
 	    && touch $(AOT_VENV)/.installed; }
-	$(AOT_VENV)/bin/python experiments/gpu_aot_check.py --out outputs/gpu_aot
+	$(AOT_VENV)/bin/python experiments/gpu_aot_check.py --out outputs/gpu_aot --roofline outputs/gpu_aot/roofline.json
 
 clean:
 	rm -rf $(VENV) $(AOT_VENV) outputs .pytest_cache
