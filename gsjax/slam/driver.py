@@ -88,6 +88,7 @@ def chunk_loop(
     start: int = 0,
     poses: np.ndarray | None = None,
     on_grow: Callable[[int, int, int, int], None] | None = None,
+    call: Callable | None = None,
 ) -> Iterator[Chunk]:
     """Run frames ``start .. total-1`` through SLAM from ``state``, ``chunk`` frames per scan; yield a
     :class:`Chunk` after each.
@@ -95,9 +96,10 @@ def chunk_loop(
     ``read_frame(i)`` gives host frame ``i``; its ground-truth pose is blanked before it reaches the core.
     ``poses`` [total, 4, 4] w2c: known poses instead of tracking (mapping-only studies); None tracks.
     ``on_grow(dropped, first, last, new_capacity)`` is told before a chunk is re-run with a doubled capacity.
+    ``call``: how a chunk's ``run_chunk`` is called (:func:`batch_chunk_loop`).
     """
     for batch in batch_chunk_loop([Group(state, config)], read_frame, total, intrinsics, chunk=chunk, start=start,
-                                  poses=poses, on_grow=lambda group, *info: on_grow and on_grow(*info)):
+                                  poses=poses, on_grow=lambda group, *info: on_grow and on_grow(*info), call=call):
         yield Chunk(batch.start, batch.count, batch.frames, batch.states[0], batch.outputs[0],
                     _capacity(batch.states[0], False), batch.seconds, batch.regrow_seconds, batch.read_seconds)
 
@@ -125,9 +127,11 @@ class BatchChunk(NamedTuple):
     read_seconds: float
 
 
-def _call(group: Group, frames, valid, intrinsics, poses):
+def _call(group: Group, frames, valid, intrinsics, poses, call: Callable | None):
     if group.stacked:
         return _run_batch_chunk(group.state, frames, valid, group.config, intrinsics, poses)
+    if call is not None:
+        return call(run_chunk, group.state, frames, valid, group.config, intrinsics, poses)
     return run_chunk(group.state, frames, valid, group.config, intrinsics, poses)
 
 
@@ -143,6 +147,7 @@ def batch_chunk_loop(
     on_grow: Callable[[int, int, int, int, int], None] | None = None,
     place: Callable | None = None,
     fetch: Callable = jax.device_get,
+    call: Callable | None = None,
 ) -> Iterator[BatchChunk]:
     """:func:`chunk_loop` for several groups over the same frames (read once per chunk): every group's chunk is
     dispatched before any result is awaited, so groups placed on different devices run at the same time.
@@ -150,7 +155,9 @@ def batch_chunk_loop(
     A group whose chunk dropped Gaussians is grown (every entry of a stacked group) and re-run on its own;
     ``on_grow(group, dropped, first, last, new_capacity)`` is told first. ``place(group_index, state)`` puts a grown
     state back where the group lives (None: JAX's default placement). ``fetch`` brings a chunk's outputs to the
-    host (a multi-process sweep gathers a group sharded over processes).
+    host (a multi-process sweep gathers a group sharded over processes). ``call(run_chunk, *args)`` runs a
+    one-config group's chunk (None: ``run_chunk(*args)``; the shell passes
+    :meth:`gsjax.app.programs.ExportedPrograms.call`, which skips tracing in a warm process).
     """
     place = place or (lambda index, state: state)
     states = [g.state for g in groups]
@@ -166,7 +173,8 @@ def batch_chunk_loop(
             chunk_poses = jnp.asarray(np.concatenate([host_poses, np.repeat(host_poses[-1:], chunk - count, 0)]))
         read_s = time.perf_counter() - t0
         t0 = time.perf_counter()
-        launched = [_call(g._replace(state=s), frames, valid, intrinsics, chunk_poses) for g, s in zip(groups, states)]
+        launched = [_call(g._replace(state=s), frames, valid, intrinsics, chunk_poses, call)
+                    for g, s in zip(groups, states)]
         new_states, outputs, regrow_s = [], [], 0.0
         for index, (group, (new_state, out)) in enumerate(zip(groups, launched)):
             out = fetch(out)
@@ -178,7 +186,7 @@ def batch_chunk_loop(
                     on_grow(index, dropped, done, done + count - 1, capacity)
                 state = place(index, _grow_batch(state, jnp.zeros(capacity)) if group.stacked
                               else grow_capacity(state, capacity))
-                new_state, out = _call(group._replace(state=state), frames, valid, intrinsics, chunk_poses)
+                new_state, out = _call(group._replace(state=state), frames, valid, intrinsics, chunk_poses, call)
                 out = fetch(out)
                 regrow_s += time.perf_counter() - t1
             new_states.append(new_state)
