@@ -2,7 +2,11 @@
 as ``gsjax run --preset cpu`` with CB-KNN off and paper (``experiments/tracking_table.py`` writes the table,
 ``tests/app/test_slow_tracking.py`` holds every run under its bound).
 
-``BOUNDS_CM`` sit a little above the values measured on 2026-12-02, so a tracking regression fails the slow suite.
+``BOUNDS_CM`` sit a little above the values measured on 2026-12-02, so a tracking regression fails the slow suite;
+except the 4-frame Replica sample's (issue 37, decision 2): that sample is a smoke test, not an accuracy gate (it
+reacts to any change of mapping chaotically), so its bound is the preset's own 5-seed mean + 3 std
+(:func:`seed_bound`), **recomputed whenever the ``cpu`` preset changes**
+(``python experiments/tracking_table.py --work DIR --seed-bound replica``).
 """
 
 from __future__ import annotations
@@ -60,13 +64,13 @@ def available(row: Row) -> bool:
     return row.needs is None or (shared_data() / row.needs).is_dir()
 
 
-def run_row(row: Row, mode: str, work: Path) -> RunMetrics:
-    """``gsjax run`` for ``row`` with CB-KNN ``mode`` into ``work/ROW_MODE`` (reusing a finished run) -> its
-    metrics.json."""
+def run_row(row: Row, mode: str, work: Path, seed: int = 0) -> RunMetrics:
+    """``gsjax run`` for ``row`` with CB-KNN ``mode`` and ``seed`` into ``work/ROW_MODE`` (``_sSEED`` appended for
+    seeds other than 0; a finished run there is reused) -> its metrics.json."""
     from gsjax.app.cli import main
 
-    out = Path(work) / f"{row.name}_{mode}"
-    argv = ["run", *row.flags, "--cbknn", mode, "--out", str(out), "--no-progress"]
+    out = Path(work) / (f"{row.name}_{mode}" + (f"_s{seed}" if seed else ""))
+    argv = ["run", *row.flags, "--cbknn", mode, "--seed", str(seed), "--out", str(out), "--no-progress"]
     if row.needs:
         argv += ["--path", str(shared_data() / row.needs)]
     if (out / "config.json").exists():
@@ -75,6 +79,16 @@ def run_row(row: Row, mode: str, work: Path) -> RunMetrics:
     if status != 0:
         raise RuntimeError(f"gsjax {' '.join(argv)} exited with {status}")
     return read_run_metrics(out / "metrics.json")
+
+
+def seed_bound(row: Row, mode: str, work: Path, seeds: int = 5) -> dict:
+    """``row``'s ATE over ``seeds`` seeds of the preset (:func:`run_row`): the values (cm), their mean and std, and
+    the bound mean + 3 std."""
+    import statistics
+
+    values = [run_row(row, mode, work, seed).ate_cm for seed in range(seeds)]
+    mean, std = statistics.mean(values), statistics.stdev(values)
+    return dict(ate_cm=values, mean_cm=mean, std_cm=std, bound_cm=mean + 3.0 * std)
 
 
 def summary(metrics: RunMetrics) -> dict:

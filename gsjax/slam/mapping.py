@@ -109,10 +109,16 @@ def map_window(
         view, color, depth = view_at(g, view_index, smooth, it, selection)
         return mapping_loss(view, color, depth, cfg.lambda_color, cfg.lambda_depth, cfg.ssim_weight)
 
-    def select_all(params, active):  # every window view's slots on the map as it is now
+    def select_all(params, active):  # every valid window view's slots on the map as it is now
         g = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
+        empty = empty_selection(intrinsics, config.raster)
+
+        def one(view):
+            w2c, valid = view
+            return jax.lax.cond(valid, lambda: select_slots(g, w2c, intrinsics, config.raster), lambda: empty)
+
         # a loop, not vmap: the selection is traced once for the whole step, and batching its trace would redo it
-        return jax.lax.map(lambda w2c: select_slots(g, w2c, intrinsics, config.raster), views.w2c)
+        return jax.lax.map(one, (views.w2c, views.valid))
 
     def iteration(view_at, carry, inputs):
         params, active, opt_state, selections = carry
