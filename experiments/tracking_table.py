@@ -19,7 +19,7 @@ import re
 import sys
 from pathlib import Path
 
-from gsjax.app.tracking_table import BOUNDS_CM, MODES, ROWS, available, run_row, shared_data, summary
+from gsjax.app.tracking_table import BOUNDS_CM, MODES, ROWS, available, run_row, seed_bound, shared_data, summary
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
@@ -51,7 +51,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, required=True, help="run directories (outside git; reused)")
     parser.add_argument("--rows", default=",".join(r.name for r in ROWS), help="comma-separated row names")
     parser.add_argument("--update-readme", action="store_true")
+    parser.add_argument("--seed-bound", metavar="ROW", default=None,
+                        help="instead: ROW's ATE over 5 seeds per mode and its bound mean + 3 std (the Replica "
+                             "sample's bound, recomputed whenever the cpu preset changes)")
     args = parser.parse_args(argv)
+    if args.seed_bound:
+        row = next(r for r in ROWS if r.name == args.seed_bound)
+        bounds = {mode: seed_bound(row, mode, args.work) for mode in MODES}
+        for mode, b in bounds.items():
+            print(f"{row.name} {mode}: ATE {', '.join(f'{v:.3f}' for v in b['ate_cm'])} cm; mean {b['mean_cm']:.3f}, "
+                  f"std {b['std_cm']:.3f}, bound {b['bound_cm']:.2f} cm (now {BOUNDS_CM[(row.name, mode)]:.2f})")
+        (RESULTS / f"seed_bound_{row.name}.json").write_text(json.dumps(bounds, indent=2) + "\n")
+        return 0
     wanted = args.rows.split(",")
     unknown = set(wanted) - {r.name for r in ROWS}
     if unknown:
