@@ -55,14 +55,15 @@ def run_record(sequence: Sequence, config: SlamConfig, *, chunk: int, seed: int,
 
 def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: dict,
                   timings: dict, record: dict, warnings: list[str],
-                  checkpoints: CheckpointLedger | None = None) -> RunMetrics:
+                  checkpoints: CheckpointLedger | None = None, frames: dict | None = None) -> RunMetrics:
     """Evaluate a finished run and write ``trajectory.txt``, ``groundtruth.txt`` (when the sequence has ground
     truth), ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and ``metrics.json`` into
     ``options.out``; returns the metrics.
 
     ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` as lists; ``timings``: stage times (s);
     ``record``: what ``config.json`` holds; ``warnings``: every warning of the run, for ``metrics.json``;
-    ``checkpoints``: the checkpoints the run wrote, for ``metrics.json``.
+    ``checkpoints``: the checkpoints the run wrote, for ``metrics.json``; ``frames``: host frames the run still
+    holds, by index (:func:`is_evaluation_frame` ones; the others are read from the sequence again).
     """
     out = Path(options.out)
     t0 = time.perf_counter()
@@ -91,7 +92,8 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
     else:
         plot_trajectory_top_view(out / "trajectory.png", est_c2w[:, :3, 3], None,
                                  title=f"{sequence.name} (no ground truth)")
-    render_metrics, cbknn = _render_metrics(sequence, config, options, state, outputs)
+    read = sequence.read_host if not frames else (lambda t: frames[t] if t in frames else sequence.read_host(t))
+    render_metrics, cbknn = _render_metrics(sequence, read, config, options, state, outputs)
     write_ply(out / "map.ply", state.gaussians)
     timings["outputs_s"] = time.perf_counter() - t0
     slam_frames_per_s = len(est_c2w) / timings["slam_s"] if timings["slam_s"] > 0 else None
@@ -157,7 +159,12 @@ def _cbknn_stats(gaussians, w2c, intrinsics, settings, params, motion):
     return render(gaussians, w2c, intrinsics, settings, cbknn=params, motion=motion).stats.cbknn
 
 
-def _render_metrics(sequence, config: SlamConfig, options: OutputOptions, state: SlamState,
+def is_evaluation_frame(t: int, eval_every: int) -> bool:
+    """SplaTAM's evaluation frames: t = 0 and (t + 1) % eval_every == 0."""
+    return t == 0 or (t + 1) % eval_every == 0
+
+
+def _render_metrics(sequence, read, config: SlamConfig, options: OutputOptions, state: SlamState,
                     outputs: dict) -> tuple[RenderMetrics, CBKNNSummary | None]:
     """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0, except frames
     skipped for lack of depth: the final map rendered canonically at the estimated poses, compared with the input
@@ -168,7 +175,7 @@ def _render_metrics(sequence, config: SlamConfig, options: OutputOptions, state:
     frame's own motion gamma) for its diagnostics: K and rho maps in ``renders/cbknn_T.png`` and, returned second,
     their statistics (None otherwise)."""
     total = len(outputs["w2c"])
-    frames = [t for t in range(total) if (t == 0 or (t + 1) % options.eval_every == 0) and not outputs["skipped"][t]]
+    frames = [t for t in range(total) if is_evaluation_frame(t, options.eval_every) and not outputs["skipped"][t]]
     if not frames:
         return RenderMetrics(), None
     samples = set(np.unique(np.linspace(0, len(frames) - 1, min(options.samples, len(frames))).round().astype(int)))
@@ -178,7 +185,7 @@ def _render_metrics(sequence, config: SlamConfig, options: OutputOptions, state:
     renders = Path(options.out) / "renders"
     renders.mkdir(parents=True, exist_ok=True)
     for position, t in enumerate(frames):
-        frame = sequence.read_host(t)
+        frame = read(t)
         w2c = jnp.asarray(outputs["w2c"][t], jnp.float32)
         out = _eval_render(state.gaussians, w2c, sequence.intrinsics, config.raster)
         values = render_metrics_splatam(out.color, out.depth, jnp.asarray(frame.color), jnp.asarray(frame.depth))

@@ -31,7 +31,7 @@ import numpy as np
 from gsjax.app.memory import limit_malloc_arenas
 from gsjax.app.progress import Progress
 from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
-from gsjax.app.run_outputs import OutputOptions, run_record, write_outputs
+from gsjax.app.run_outputs import OutputOptions, is_evaluation_frame, run_record, write_outputs
 from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
@@ -217,6 +217,7 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
                        f"map to {new_capacity} slots and re-running the chunk")
 
     pending: list = []  # the chunks' outputs since the last checkpoint
+    kept: dict = {}  # the evaluation frames read by the chunk loop, so the outputs need not read them again
     try:
         for chunk in chunk_loop(state, sequence.read_host, total, config, intrinsics, chunk=options.chunk,
                                 start=ledger.frames_done, on_grow=on_grow):
@@ -239,6 +240,8 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
                                       started=int(chunk_out.num_gaussians[i]) > 0))
             for i in np.flatnonzero(chunk_out.retried):
                 warn(_divergence_warning(sequence, done + int(i), bool(chunk_out.diverged[i])))
+            kept.update((done + i, frame) for i, frame in enumerate(chunk.frames)
+                        if is_evaluation_frame(done + i, options.eval_every))
             for name, values in _outputs_to_lists(chunk_out, count).items():
                 outputs.setdefault(name, []).extend(values)
             pending.append(chunk_out)
@@ -273,7 +276,7 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
 
     timings["compile_s_estimate"] = _compile_estimate(ledger.first_chunk_s, timings["slam_s"], total, options.chunk)
     return write_outputs(sequence, config, options.outputs, state, outputs, timings, record,
-                         [*input_warnings, *ledger.warnings, *resume_warnings], ledger.checkpoints)
+                         [*input_warnings, *ledger.warnings, *resume_warnings], ledger.checkpoints, frames=kept)
 
 
 def resume_key(record: dict) -> dict:

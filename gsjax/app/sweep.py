@@ -208,7 +208,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
 
 def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: list[int], options: SweepOptions,
            writer: bool, describe: dict | None, input_warnings: tuple[str, ...], say) -> list[dict]:
-    from gsjax.app.run_outputs import OutputOptions, run_record, write_outputs
+    from gsjax.app.run_outputs import OutputOptions, is_evaluation_frame, run_record, write_outputs
 
     points = expand_grid(base, axes, seeds)
     out = Path(options.out)
@@ -250,10 +250,12 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
                                f"found no free slot at frames {first}-{last}; growing to {capacity} slots and "
                                "re-running the chunk")
 
-            parts, slam_s, regrow_s, first, final_states = [], 0.0, 0.0, None, []
+            parts, slam_s, regrow_s, first, final_states, kept = [], 0.0, 0.0, None, [], {}
             for chunk in batch_chunk_loop(groups_, sequence.read_host, total, k, chunk=options.chunk,
                                           on_grow=on_grow, place=place, fetch=to_host):
                 parts.append(chunk.outputs)
+                kept.update((chunk.start + i, frame) for i, frame in enumerate(chunk.frames)
+                            if is_evaluation_frame(chunk.start + i, options.eval_every))
                 final_states = chunk.states
                 slam_s += chunk.seconds
                 regrow_s += chunk.regrow_seconds
@@ -283,7 +285,7 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
                     metrics = write_outputs(sequence, point.config,
                                             OutputOptions(run_dir, options.eval_every, options.samples),
                                             jax.device_get(state), run_outputs, run_timings, record,
-                                            list(input_warnings))
+                                            list(input_warnings), frames=kept)
                     rows.append(_row(point, metrics, seconds, run_dir.relative_to(out)))
             timings["outputs_s"] += time.perf_counter() - t0
     finally:

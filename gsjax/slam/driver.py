@@ -43,8 +43,9 @@ class Chunk(NamedTuple):
       state: the state after the chunk.
       outputs: :class:`StepOutputs` of the real frames as numpy, [count, ...].
       capacity: the map capacity after the chunk.
-      seconds: wall time of the chunk's final scan (s); regrow_seconds: of scans redone for capacity;
-      read_seconds: of reading its frames.
+      seconds: wall time of the chunk's final scan (s), from its launch until its outputs are on the host (the next
+        chunk's frames are read meanwhile); regrow_seconds: of scans redone for capacity; read_seconds: of reading
+        its frames (behind the previous chunk's scan, except for the first chunk).
     """
 
     start: int
@@ -161,20 +162,29 @@ def batch_chunk_loop(
     """
     place = place or (lambda index, state: state)
     states = [g.state for g in groups]
-    done = start
-    while done < total:
-        count = min(chunk, total - done)
+
+    def read(first: int):
+        """The chunk from frame ``first``: (host frames, device chunk, valid mask, poses, seconds spent)."""
         t0 = time.perf_counter()
-        host = [read_frame(i) for i in range(done, done + count)]
+        count = min(chunk, total - first)
+        host = [read_frame(i) for i in range(first, first + count)]
         frames, valid = pad_chunk(host, chunk)
         chunk_poses: jax.Array | None = None
         if poses is not None:
-            host_poses = np.asarray(poses[done:done + count], np.float32)
+            host_poses = np.asarray(poses[first:first + count], np.float32)
             chunk_poses = jnp.asarray(np.concatenate([host_poses, np.repeat(host_poses[-1:], chunk - count, 0)]))
-        read_s = time.perf_counter() - t0
+        return host, frames, valid, chunk_poses, time.perf_counter() - t0
+
+    done = start
+    upcoming = read(done) if done < total else None
+    while done < total:
+        host, frames, valid, chunk_poses, read_s = upcoming
+        count = len(host)
         t0 = time.perf_counter()
         launched = [_call(g._replace(state=s), frames, valid, intrinsics, chunk_poses, call)
                     for g, s in zip(groups, states)]
+        # The next chunk is read while this one runs (dispatch is asynchronous): reading overlaps the SLAM work.
+        upcoming = read(done + count) if done + count < total else None
         new_states, outputs, regrow_s = [], [], 0.0
         for index, (group, (new_state, out)) in enumerate(zip(groups, launched)):
             out = fetch(out)
