@@ -1,15 +1,19 @@
 """JAX's persistent compilation cache, shared by the CLI, the tests and the experiments.
 
 Compiled XLA programs are stored under ``$GSJAX_CACHE_DIR`` (default: ``$XDG_CACHE_HOME/gsjax/jax`` or
-``~/.cache/gsjax/jax``), so a second run of the same shapes skips compilation.
+``~/.cache/gsjax/jax``), so a second run of the same shapes skips compilation; the SLAM program's exported form
+beside it (``...-exported``, :mod:`gsjax.app.programs`), so a second run also skips tracing it.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
+
+_exported = None  # this process's ExportedPrograms, once the cache is enabled
 
 
 def cache_dir() -> Path:
@@ -29,4 +33,15 @@ def enable_compilation_cache() -> Path:
     # evaluation render (0.16 s) and the many small programs of its first calls.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    global _exported
+    if _exported is None:
+        from gsjax.app.programs import ExportedPrograms
+
+        _exported = ExportedPrograms(Path(f"{path}-exported"))
     return path
+
+
+def exported_call() -> Callable | None:
+    """How the shell calls ``run_chunk`` (:meth:`gsjax.app.programs.ExportedPrograms.call`: the exported program
+    beside the compilation cache), or None (a plain call) while the cache is not enabled."""
+    return None if _exported is None else _exported.call

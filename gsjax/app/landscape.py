@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsjax.app.compilation_cache import exported_call
 from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.camera import se3_log
 from gsjax.config_text import config_to_dict
@@ -125,7 +126,8 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     poses = relative_gt[:t].astype(np.float32) if options.map_from == "gt" else None
     how = "at their ground-truth poses" if poses is not None else "SLAM"
     say(f"gsjax landscape: mapping frames 0..{t - 1} ({how})")
-    built = slam_run(frames[:t], config, sequence.intrinsics, seed=options.seed, poses=poses, chunk=options.chunk)
+    built = slam_run(frames[:t], config, sequence.intrinsics, seed=options.seed, poses=poses, chunk=options.chunk,
+                     call=exported_call())
     map_s = time.perf_counter() - t0
     # Frame T's problem exactly as SLAM's step poses it after frames 0..T-1 (prediction, motion, smooth flag).
     problem = tracking_problem(built.state, jnp.asarray(frames[t].color), jnp.asarray(frames[t].depth), config,

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gsjax.app.compilation_cache import exported_call
 from gsjax.app.memory import limit_malloc_arenas
 from gsjax.app.progress import Progress
 from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
@@ -220,7 +221,7 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
     kept: dict = {}  # the evaluation frames read by the chunk loop, so the outputs need not read them again
     try:
         for chunk in chunk_loop(state, sequence.read_host, total, config, intrinsics, chunk=options.chunk,
-                                start=ledger.frames_done, on_grow=on_grow):
+                                start=ledger.frames_done, on_grow=on_grow, call=exported_call()):
             state, chunk_out, count, ledger.capacity = chunk.state, chunk.outputs, chunk.count, chunk.capacity
             done = ledger.frames_done
             timings["read_frames_s"] += chunk.read_seconds

@@ -36,6 +36,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from gsjax.app.compilation_cache import exported_call
 from gsjax.app.progress import Progress
 from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.sweep_devices import batch_mesh, place_batch, share_results, to_host
@@ -252,7 +253,7 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
 
             parts, slam_s, regrow_s, first, final_states, kept = [], 0.0, 0.0, None, [], {}
             for chunk in batch_chunk_loop(groups_, sequence.read_host, total, k, chunk=options.chunk,
-                                          on_grow=on_grow, place=place, fetch=to_host):
+                                          on_grow=on_grow, place=place, fetch=to_host, call=exported_call()):
                 parts.append(chunk.outputs)
                 kept.update((chunk.start + i, frame) for i, frame in enumerate(chunk.frames)
                             if is_evaluation_frame(chunk.start + i, options.eval_every))

@@ -163,27 +163,27 @@ def batch_chunk_loop(
     place = place or (lambda index, state: state)
     states = [g.state for g in groups]
 
-    def read(first: int):
-        """The chunk from frame ``first``: (host frames, device chunk, valid mask, poses, seconds spent)."""
+    def read(first: int) -> tuple[list, float]:
+        """The host frames of the chunk from frame ``first``, and the seconds spent reading them."""
         t0 = time.perf_counter()
-        count = min(chunk, total - first)
-        host = [read_frame(i) for i in range(first, first + count)]
-        frames, valid = pad_chunk(host, chunk)
-        chunk_poses: jax.Array | None = None
-        if poses is not None:
-            host_poses = np.asarray(poses[first:first + count], np.float32)
-            chunk_poses = jnp.asarray(np.concatenate([host_poses, np.repeat(host_poses[-1:], chunk - count, 0)]))
-        return host, frames, valid, chunk_poses, time.perf_counter() - t0
+        host = [read_frame(i) for i in range(first, min(first + chunk, total))]
+        return host, time.perf_counter() - t0
 
     done = start
     upcoming = read(done) if done < total else None
     while done < total:
-        host, frames, valid, chunk_poses, read_s = upcoming
+        host, read_s = upcoming
         count = len(host)
         t0 = time.perf_counter()
+        frames, valid = pad_chunk(host, chunk)
+        chunk_poses: jax.Array | None = None
+        if poses is not None:
+            host_poses = np.asarray(poses[done:done + count], np.float32)
+            chunk_poses = jnp.asarray(np.concatenate([host_poses, np.repeat(host_poses[-1:], chunk - count, 0)]))
         launched = [_call(g._replace(state=s), frames, valid, intrinsics, chunk_poses, call)
                     for g, s in zip(groups, states)]
-        # The next chunk is read while this one runs (dispatch is asynchronous): reading overlaps the SLAM work.
+        # The next chunk is read (on the host: no device transfer, which would wait for this chunk) while this one
+        # runs (dispatch is asynchronous), so reading overlaps the SLAM work.
         upcoming = read(done + count) if done + count < total else None
         new_states, outputs, regrow_s = [], [], 0.0
         for index, (group, (new_state, out)) in enumerate(zip(groups, launched)):
@@ -250,6 +250,7 @@ def run(
     poses: np.ndarray | None = None,
     chunk: int = 8,
     capacity: int | None = None,
+    call: Callable | None = None,
 ) -> RunResult:
     """SLAM over ``frames`` in memory, no I/O: the same chunk loop (and so the same result) as ``gsjax run``.
 
@@ -260,6 +261,7 @@ def run(
       seed: PRNG seed (mapping-window and pixel sampling).
       poses: optional [T, 4, 4] world-to-camera poses to map with instead of tracking.
       chunk: frames per jitted scan; capacity: initial map capacity (default 2 H W, grown as needed).
+      call: how each chunk's ``run_chunk`` is called (:func:`batch_chunk_loop`; None: directly).
     """
     if hasattr(frames, "read_host"):
         read, total = frames.read_host, len(frames)
@@ -274,7 +276,7 @@ def run(
     state = initial_state(capacity or 2 * height * width, height, width,
                           keyframe_capacity_for(total, config.keyframe_every), total, seed)
     parts, chunk_state = [], state
-    for done in chunk_loop(state, read, total, config, intrinsics, chunk=chunk, poses=poses):
+    for done in chunk_loop(state, read, total, config, intrinsics, chunk=chunk, poses=poses, call=call):
         parts.append(done.outputs)
         chunk_state = done.state
     outputs = concat_outputs(parts)

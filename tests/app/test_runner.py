@@ -3,6 +3,7 @@ a resumed run equals the uninterrupted one bit for bit, and resuming with other 
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import shutil
@@ -170,3 +171,13 @@ def test_a_run_holds_its_directory_while_it_runs_and_lets_go_after(tmp_path):
     run_slam(tiny_sequence(), tiny_config(), run_options(out), on_chunk=lambda done: seen.append(holder(out)))
     assert seen == [os.getpid()] * (FRAMES // CHUNK)
     assert holder(out) is None
+
+
+def test_a_run_reads_each_frame_once(tmp_path):
+    """The evaluation renders compare with the frames the chunk loop read (the next chunk is read while one runs):
+    no frame is read twice, but frame 0, read once more before anything is written (to fail early)."""
+    sequence = copy.copy(tiny_sequence())
+    reads, read = [], sequence.read_host
+    sequence.read_host = lambda i: (reads.append(i), read(i))[1]
+    run_slam(sequence, tiny_config(), run_options(tmp_path / "run"))
+    assert sorted(reads) == [0, *range(FRAMES)]

@@ -154,3 +154,16 @@ def test_noise_levels_are_validated():
     for frame in (0, 1.5):
         with pytest.raises(ValueError, match="noise.persistent_frame"):
             NoiseConfig(persistent_frame=frame)
+
+
+def test_mapping_every_other_frame_skips_mapping_on_the_others_only():
+    """``mapping.every`` 2: frames 1, 3 and 5 (neither even nor keyframes) are tracked and densified but not
+    mapped (mapping loss 0); frames 0, 2 and 4 are mapped as in the plain run up to then."""
+    plain = run_tiny()
+    sparse = run_tiny(apply_overrides(tiny_config(), {"mapping.every": "2"}))
+    loss = np.asarray(sparse.outputs.mapping_loss)
+    assert np.all(loss[[1, 3, 5]] == 0.0) and np.all(loss[[0, 2, 4]] > 0.0)
+    assert np.asarray(plain.outputs.mapping_loss)[1] > 0.0
+    assert_trees_equal(jax.tree_util.tree_map(lambda x: x[:1], sparse.outputs),
+                       jax.tree_util.tree_map(lambda x: x[:1], plain.outputs))
+    assert all_finite(sparse.outputs)

@@ -1,0 +1,125 @@
+"""Warm runs that do not trace the SLAM program: ``run_chunk`` exported once (:mod:`jax.export`) and kept beside
+JAX's compilation cache, keyed by everything it depends on.
+
+Tracing ``run_chunk`` (Python running every stage of a SLAM step symbolically) takes seconds on every run, even when
+JAX's persistent cache holds the compiled executable: the cache is keyed by the traced program, so it has to be
+traced first. :class:`ExportedPrograms` keys the *traced program itself* instead: the gsjax source, the JAX version,
+the platform, the arguments' tree structure (the static config fields) and shapes. On a hit it deserializes the
+exported StableHLO (milliseconds) and calls it through ``jax.jit``, whose compilation is then a hit in JAX's
+persistent cache; on a miss it exports (one trace, as before) and stores the module for the next process. Anything
+that goes wrong (a module JAX cannot export or read back) falls back to calling the function itself.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import pickle
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import jaxlib
+
+from gsjax.io.atomic import atomic_write_bytes
+
+log = logging.getLogger("gsjax")
+
+_SOURCE = Path(__file__).resolve().parents[1]  # the gsjax package
+_registered = False
+
+
+def _register_serialization() -> None:
+    """Let :mod:`jax.export` serialize the pytrees ``run_chunk`` takes and returns (their static fields pickled)."""
+    global _registered
+    if _registered:
+        return
+    from jax import export
+
+    from gsjax.camera import Intrinsics
+    from gsjax.data.frame import Frame
+    from gsjax.gaussians import Gaussians
+    from gsjax.raster import RasterSettings
+    from gsjax.raster.cbknn import CBKNN
+    from gsjax.slam import config
+    from gsjax.slam.state import KeyframeBuffer, SlamState
+    from gsjax.slam.system import StepOutputs
+
+    for cls in (SlamState, KeyframeBuffer, Gaussians, Frame, Intrinsics, RasterSettings, CBKNN, config.SlamConfig,
+                config.TrackingConfig, config.MappingConfig, config.DensifyConfig, config.CBKNNConfig,
+                config.NoiseConfig):
+        export.register_pytree_node_serialization(cls, serialized_name=f"gsjax.{cls.__qualname__}",
+                                                  serialize_auxdata=pickle.dumps, deserialize_auxdata=pickle.loads)
+    export.register_namedtuple_serialization(StepOutputs, serialized_name="gsjax.StepOutputs")
+    _registered = True
+
+
+def source_digest(root: Path = _SOURCE) -> str:
+    """sha256 of every ``.py`` file under ``root`` (relative paths and contents, in sorted order)."""
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+class ExportedPrograms:
+    """Exported programs under ``directory``, one file per key (:func:`program_key`).
+
+    ``call(fn, *args)`` is ``fn(*args)`` for a jitted ``fn`` of arrays and pytrees: from this process's memory, else
+    from the file, else exported now (and written for the next process)."""
+
+    def __init__(self, directory: Path):
+        self.directory = Path(directory)
+        self._digest: str | None = None  # of the gsjax source, on the first call
+        self._programs: dict[str, Callable] = {}
+
+    def call(self, fn: Callable, *args):
+        self._digest = self._digest or source_digest()
+        key = program_key(fn, args, self._digest)
+        program = self._programs.get(key)
+        if program is None:
+            program = self._programs[key] = self._load(key) or self._export(fn, args, key)
+        return program(*args)
+
+    def _path(self, key: str) -> Path:
+        return self.directory / f"{key}.exported"
+
+    def _load(self, key: str) -> Callable | None:
+        path = self._path(key)
+        if not path.exists():
+            return None
+        try:
+            _register_serialization()
+            from jax import export
+
+            return jax.jit(export.deserialize(bytearray(path.read_bytes())).call)
+        except Exception as error:  # a file from an interrupted or foreign writer: export again
+            log.debug("exported program %s unreadable (%s); exporting again", path, error)
+            return None
+
+    def _export(self, fn: Callable, args: tuple, key: str) -> Callable:
+        try:
+            _register_serialization()
+            from jax import export
+
+            exported = export.export(fn)(*args)
+            self.directory.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(self._path(key), bytes(exported.serialize()))
+            return jax.jit(exported.call)
+        except Exception as error:  # not exportable (e.g. a custom call without a stability guarantee)
+            log.debug("%s not exported (%s); calling it directly", getattr(fn, "__name__", fn), error)
+            return fn
+
+
+def program_key(fn: Callable, args: tuple, digest: str) -> str:
+    """What an exported ``fn(*args)`` depends on, hashed: ``fn``'s name, the gsjax source ``digest``, the JAX
+    version, platform, devices and flags, the arguments' tree structure (static fields included) and every leaf's
+    shape, dtype and weak type."""
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    device = jax.devices()[0]
+    parts = [getattr(fn, "__module__", ""), getattr(fn, "__qualname__", repr(fn)), digest, jax.__version__,
+             jaxlib.__version__, device.platform, device.device_kind,
+             str(jax.device_count()), str(jax.config.jax_enable_x64), os.environ.get("XLA_FLAGS", ""), str(tree)]
+    parts += [str(jax.typeof(leaf)) for leaf in leaves]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]

@@ -1,0 +1,79 @@
+"""Exported SLAM programs (``gsjax.app.programs``): the same results as calling ``run_chunk``, a new store reads the
+file instead of tracing, keys follow the static config and the source, and anything unreadable or unexportable falls
+back."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import pytest
+
+from gsjax import slam
+from gsjax.app import programs
+from gsjax.app.programs import ExportedPrograms, program_key
+from gsjax.slam.system import run_chunk
+from tests.support.tiny_slam import CHUNK, assert_trees_equal, tiny_config, tiny_sequence
+
+
+def run_tiny(call=None):
+    return slam.run(tiny_sequence(), tiny_config(), tiny_sequence().intrinsics, chunk=CHUNK, call=call)
+
+
+@pytest.fixture(scope="module")
+def direct():
+    return run_tiny()
+
+
+def test_an_exported_program_gives_the_direct_result_and_a_new_store_reads_it_back(tmp_path, direct, monkeypatch):
+    exported = run_tiny(ExportedPrograms(tmp_path).call)
+    assert_trees_equal(exported.outputs, direct.outputs)
+    assert_trees_equal(exported.state, direct.state)
+    assert len(list(tmp_path.glob("*.exported"))) == 1  # both chunks: one program
+
+    def no_export(*args):
+        raise AssertionError("exported again instead of read back")
+
+    monkeypatch.setattr(ExportedPrograms, "_export", no_export)
+    again = run_tiny(ExportedPrograms(tmp_path).call)  # as a new process: nothing in memory
+    assert_trees_equal(again.outputs, direct.outputs)
+
+
+def test_an_unreadable_file_is_exported_again_and_an_unexportable_program_is_called(tmp_path, direct, monkeypatch):
+    run_tiny(ExportedPrograms(tmp_path).call)
+    (path,) = tmp_path.glob("*.exported")
+    path.write_bytes(b"not a module")
+    assert_trees_equal(run_tiny(ExportedPrograms(tmp_path).call).outputs, direct.outputs)
+    assert path.read_bytes() != b"not a module"
+
+    def refuse(fn):
+        raise ValueError("cannot export")
+
+    monkeypatch.setattr(jax.export, "export", refuse)
+    other = tmp_path / "other"
+    assert_trees_equal(run_tiny(ExportedPrograms(other).call).outputs, direct.outputs)
+    assert not list(other.glob("*.exported"))
+
+
+def test_the_key_follows_static_fields_shapes_and_the_source_not_traced_values():
+    config = tiny_config()
+    state = slam.run(tiny_sequence(), config, tiny_sequence().intrinsics, chunk=CHUNK).state
+    args = (state, None, None, config, tiny_sequence().intrinsics)
+    key = program_key(run_chunk, args, "digest")
+    traced = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, lr_trans=1e-3))
+    static = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, iters=4))
+    assert program_key(run_chunk, (state, None, None, traced, args[4]), "digest") == key
+    assert program_key(run_chunk, (state, None, None, static, args[4]), "digest") != key
+    assert program_key(run_chunk, args, "other digest") != key
+    grown = dataclasses.replace(state, gaussians=state.gaussians.grow(2 * state.gaussians.capacity))
+    assert program_key(run_chunk, (grown,) + args[1:], "digest") != key
+
+
+def test_the_source_digest_changes_with_any_module(tmp_path):
+    package = tmp_path / "pkg"
+    (package / "sub").mkdir(parents=True)
+    (package / "a.py").write_text("x = 1\n")
+    (package / "sub" / "b.py").write_text("y = 2\n")
+    before = programs.source_digest(package)
+    (package / "sub" / "b.py").write_text("y = 3\n")
+    assert programs.source_digest(package) != before
