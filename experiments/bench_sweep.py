@@ -1,10 +1,11 @@
 """Wall time of one `gsjax sweep` of N configs against N separate `gsjax run` processes, from an empty compilation
 cache (a user's first sweep) and from a warm one, and where the time goes.
 
-    python experiments/bench_sweep.py --frames 10 --out /tmp/bench_sweep
+    python experiments/bench_sweep.py --frames 10 --out /tmp/bench_sweep [--configs 4]
 
 Every command runs as its own process, as a user would type it, with ``GSJAX_CACHE_DIR`` pointing at a fresh
-directory (cold) or at the one the cold pass filled (warm). Writes ``bench_sweep.json`` and prints a table.
+directory (cold) or at the one the cold pass filled (warm). Writes ``bench_sweep_N.json`` (N configs) and prints a
+table.
 """
 
 from __future__ import annotations
@@ -39,10 +40,13 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--cbknn", default="paper")
     parser.add_argument("--devices", type=int, default=None, help="gsjax sweep --devices (default: its own)")
+    parser.add_argument("--configs", type=int, default=8, choices=(2, 4, 6, 8),
+                        help="the first configs/2 alphas x both K0")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     data = ["--dataset", "synthetic", "--max-frames", str(args.frames), "--cbknn", args.cbknn, "--no-progress"]
-    configs = [(a, k) for a in ALPHAS for k in K0S]
+    alphas = ALPHAS[: args.configs // 2]
+    configs = [(a, k) for a in alphas for k in K0S]
     results = dict(frames=args.frames, configs=len(configs), cbknn=args.cbknn, cpu_count=os.cpu_count(),
                    devices=args.devices, passes={})
     caches = {name: Path(tempfile.mkdtemp(prefix=f"gsjax_bench_{name}_")) for name in ("sweep", "separate")}
@@ -51,7 +55,7 @@ def main() -> None:
             out = args.out / cache_state
             shutil.rmtree(out, ignore_errors=True)
             sweep_s = _gsjax(["sweep", "--out", str(out / "sweep"), *data, "--grid", "cbknn.params.alpha=" +
-                              ",".join(ALPHAS), "--grid", "cbknn.params.k0=" + ",".join(K0S)]
+                              ",".join(alphas), "--grid", "cbknn.params.k0=" + ",".join(K0S)]
                              + (["--devices", str(args.devices)] if args.devices else []), caches["sweep"])
             summary = json.loads((out / "sweep" / "sweep.json").read_text())
             separate = []
@@ -79,8 +83,8 @@ def main() -> None:
     finally:
         for cache in caches.values():
             shutil.rmtree(cache, ignore_errors=True)
-    (args.out / "bench_sweep.json").write_text(json.dumps(results, indent=2))
-    print(f"wrote {args.out / 'bench_sweep.json'}")
+    (args.out / f"bench_sweep_{len(configs)}.json").write_text(json.dumps(results, indent=2))
+    print(f"wrote {args.out / f'bench_sweep_{len(configs)}.json'}")
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Compiled XLA programs are stored under ``$GSJAX_CACHE_DIR`` (default: ``$XDG_CACHE_HOME/gsjax/jax`` or
 ``~/.cache/gsjax/jax``), so a second run of the same shapes skips compilation; the SLAM program's exported form
-beside it (``...-exported``, :mod:`gsjax.app.programs`), so a second run also skips tracing it.
+in it (``exported/``, :mod:`gsjax.app.programs`), so a second run also skips tracing it.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def enable_compilation_cache() -> Path:
     if _exported is None:
         from gsjax.app.programs import ExportedPrograms
 
-        _exported = ExportedPrograms(Path(f"{path}-exported"))
+        _exported = ExportedPrograms(path / "exported")  # JAX's cache reads only its own *-cache files here
     return path
 
 

@@ -104,7 +104,8 @@ class TrackingConfig:
         iterations; the strided grids take the full image's slots at their pixels) and composites those slots at
         the poses in between, with the render and its gradient exact for those slots (``adam`` only; see
         :func:`gsjax.raster.select_slots`). The map is fixed while a frame is tracked and the pose moves by
-        millimetres, so few slots that matter change.
+        millimetres, so few slots that matter change. Each iteration's loss (and so the best pose's, the frame's
+        ``tracking_loss``) is the composite of the slots it was given.
     """
 
     iters: int = static(40)

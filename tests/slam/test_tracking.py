@@ -384,9 +384,9 @@ def test_coarse_to_fine_runs_its_levels_first_at_halving_blur_and_keeps_a_full_i
     gaussians, color, depth, w2c_true = rendered_scene
     w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["b"], jnp.float32)) @ w2c_true
     intrinsics = tiny_sequence().intrinsics
-    config = apply_overrides(tracking_config("adam", 20), {
+    config = apply_overrides(tracking_config("adam", 20), {  # each iteration chooses its contributors: exact losses
         "tracking.blur_radius_px": "4", "tracking.coarse_iters": "31", "tracking.coarse_levels": "3",
-        "tracking.coarse_sigma_px": "0.5"})
+        "tracking.coarse_sigma_px": "0.5", "tracking.reselect_every": "1"})
     problem = TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0)
     levels = coarse_losses(problem, config)
     zero = jnp.zeros(6, jnp.float32)
