@@ -32,7 +32,6 @@ import optax
 from gsjax.camera import Intrinsics, camera_center, rotation_angle, se3_exp
 from gsjax.gaussians import Gaussians
 from gsjax.raster import select_slots
-from gsjax.raster.render import empty_selection
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.losses import tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
@@ -99,8 +98,6 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
 
     def select(delta):
         return select_slots(gaussians, se3_exp(delta) @ w2c_init, intrinsics, config.raster)
-
-    select.intrinsics, select.settings = intrinsics, config.raster  # what its selections are laid out for
 
     return TrackingObjective(view_at, loss_fn, lambda_color, select)
 
@@ -205,7 +202,8 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
     inf = jnp.float32(jnp.inf)
     selection0 = None
     if every > 1:
-        selection0 = empty_selection(select.intrinsics, select.settings)
+        # (its trace is the selection's first, which the loop's calls then reuse)
+        selection0 = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(select, tangent(delta0)))
     init = (jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf, selection0)
     for level, level_loss in enumerate(coarse):  # coarse_iters split over the levels, the remainder to the first
         count = cfg.coarse_iters // len(coarse) + (cfg.coarse_iters % len(coarse) if level == 0 else 0)

@@ -159,8 +159,6 @@ def test_reselect_every_chooses_contributors_at_every_rth_iteration_across_stage
     def marker(delta):  # which selection: the first pose component in tenths of a millimetre
         return jnp.round(delta[0] * 1e4).astype(jnp.int32)
 
-    select.intrinsics, select.settings = intrinsics, config.raster
-
     def loss(delta, selection=None):
         if selection is not None:
             jax.debug.callback(lambda m: handed.append(int(m)), selection.tiles_overflowed)

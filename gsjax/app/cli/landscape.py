@@ -31,8 +31,9 @@ def add(sub) -> None:
                         "smoothing, 1.5 px) and pyramid (coarse to fine, 2 blur levels) (default off,paper)")
     p.add_argument("--grid2d", action="store_true",
                    help="also the 2-D grid over the two --axes: steps^2 tracker runs per mode; landscape2d.png")
-    p.add_argument("--batch", type=int, default=64,
-                   help="tracker runs evaluated at a time (memory; default 64)")
+    p.add_argument("--batch", type=int, default=None,
+                   help="tracker runs vmapped at a time (memory; default 1 on a CPU, where one at a time is "
+                        "faster, 64 elsewhere)")
     p.add_argument("--overwrite", action="store_true", help="replace a previous landscape in --out")
     p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk while mapping (default 8)")
     p.set_defaults(func=run, accepts_overrides=True)
