@@ -26,10 +26,15 @@ def direct():
 
 
 def test_an_exported_program_gives_the_direct_result_and_a_new_store_reads_it_back(tmp_path, direct, monkeypatch):
-    exported = run_tiny(ExportedPrograms(tmp_path).call)
+    store = ExportedPrograms(tmp_path)
+    exported = run_tiny(store.call)
     assert_trees_equal(exported.outputs, direct.outputs)
     assert_trees_equal(exported.state, direct.state)
     assert len(list(tmp_path.glob("*.exported"))) == 1  # both chunks: one program
+    # ... compiled once: the first chunk's fresh (uncommitted) state and the second's (the first's output,
+    # committed) are called alike.
+    (program,) = store._programs.values()
+    assert program._cache_size() == 1
 
     def no_export(*args):
         raise AssertionError("exported again instead of read back")
