@@ -138,7 +138,9 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     if relative_gt is not None:
         reference, w2c_ref = "gt", jnp.asarray(relative_gt[t], jnp.float32)
     else:  # what SLAM's step would give frame T: the tracker from the constant-velocity prediction
-        reference, w2c_ref = "tracked", track(problem, config).w2c
+        # As a host array, like the ground truth: the landscape's program is then the same for both references
+        # (a device result is committed, and jit compiles anew for committed arguments).
+        reference, w2c_ref = "tracked", jnp.asarray(np.asarray(_track(problem, config).w2c))
     offsets = grid(options)
     directions = pure.directions(options.axes)
     document = dict(frame=t, reference=reference, reference_w2c=np.asarray(w2c_ref, np.float64).tolist(), axes={},
@@ -184,6 +186,10 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
         if options.grid2d:
             plot_landscape2d(out / "landscape2d.png", document, title=title)
     return document
+
+
+# One program (called eagerly, the tracker's scans and its many small ops compiled one by one: 14 s more at 40x30).
+_track = jax.jit(track)
 
 
 def _batch(requested: int | None) -> int:

@@ -15,12 +15,12 @@ import pytest
 from gsjax.app.cli import main
 from gsjax.app.compilation_cache import exported_call
 from gsjax.data import open_sequence, write_tum
-from gsjax.data.frame import to_device
+from gsjax.data.frame import stack_frames, to_device
 from gsjax.slam import landscape as pure
 from gsjax.slam.driver import run as slam_run
 from gsjax.slam.losses import rendered_depth, tracking_mask
 from gsjax.slam.presets import preset, with_cbknn_mode
-from gsjax.slam.system import step
+from gsjax.slam.system import run_chunk
 from gsjax.slam.tracking import TrackingProblem, tracking_objective
 from tests.support.tiny_slam import CHUNK, FRAMES, relative_gt_w2c, tiny_sequence
 
@@ -147,8 +147,9 @@ def test_the_classic_alternatives_are_tracking_variants_of_off():
 @functools.lru_cache(maxsize=None)
 def _map_and_frame():
     gt = relative_gt_w2c().astype(np.float32)
+    # Through the program the module's CLI landscape exported (the direct call gives the same bits: test_programs).
     built = slam_run([tiny_sequence().read_host(i) for i in range(FRAME)], config(), tiny_sequence().intrinsics,
-                     poses=gt[:FRAME], chunk=CHUNK)
+                     poses=gt[:FRAME], chunk=CHUNK, call=exported_call())
     frame = tiny_sequence().read_host(FRAME)
     return built.state.gaussians, jnp.asarray(frame.color), jnp.asarray(frame.depth), jnp.asarray(gt[FRAME])
 
@@ -159,6 +160,24 @@ def _map_and_frame():
 # follows matches the loss's median slope only roughly: measured up to 19 % off (rz at 0.35 deg: 6.27 vs 7.72 per
 # degree). The renderer's own CB-KNN gradients are checked against float64 finite differences in test_cbknn.
 MODES = {"off": (lambda: config(), 0.1), "paper": (lambda: with_cbknn_mode(config(), "paper"), 0.3)}
+
+
+@jax.jit
+def frozen_loss(problem: TrackingProblem, config, direction, offsets, centre):
+    """The tracking loss at ``direction * offset`` for each offset [S], with the tracking mask frozen at ``direction *
+    centre`` (one program per mode, every axis)."""
+    objective = tracking_objective(problem, config)
+    cfg = config.tracking
+    mask = tracking_mask(objective.view_at(direction * centre), problem.depth, cfg.sil_threshold)
+
+    def one(offset):  # SplaTAM's summed L1 terms, written out again
+        view = objective.view_at(direction * offset)
+        rendered = rendered_depth(view, cfg.normalized_depth)
+        return (cfg.lambda_depth * jnp.sum(jnp.where(mask, jnp.abs(rendered - problem.depth), 0.0))
+                + objective.lambda_color * jnp.sum(jnp.where(mask[..., None], jnp.abs(view.color - problem.color),
+                                                             0.0)))
+
+    return jax.vmap(one)(offsets)
 
 
 @pytest.mark.parametrize("mode", list(MODES))
@@ -180,25 +199,10 @@ def test_landscape_gradients_agree_with_finite_differences_of_its_loss(mode, axi
     intrinsics = tiny_sequence().intrinsics
     problem = TrackingProblem(gaussians, color, depth, w2c, intrinsics, smooth, gamma)
     _, grad = jax.jit(pure.loss_and_grad)(problem, mode_config, direction, at)
-    objective = tracking_objective(problem, mode_config)
-    cfg = mode_config.tracking
-
-    @jax.jit
-    def frozen_loss(offsets, centre):
-        mask = tracking_mask(objective.view_at(direction * centre), depth, cfg.sil_threshold)
-
-        def one(offset):  # SplaTAM's summed L1 terms, written out again
-            view = objective.view_at(direction * offset)
-            rendered = rendered_depth(view, cfg.normalized_depth)
-            return (cfg.lambda_depth * jnp.sum(jnp.where(mask, jnp.abs(rendered - depth), 0.0))
-                    + objective.lambda_color * jnp.sum(jnp.where(mask[..., None], jnp.abs(view.color - color), 0.0)))
-
-        return jax.vmap(one)(offsets)
-
     step = 0.005
     for centre, g in zip(at, np.asarray(grad)):
         offsets = centre + step * jnp.arange(-20, 21, dtype=jnp.float32)
-        values = np.asarray(frozen_loss(offsets, centre), np.float64)
+        values = np.asarray(frozen_loss(problem, mode_config, direction, offsets, centre), np.float64)
         fd = float(np.median(np.diff(values) / np.diff(np.asarray(offsets, np.float64))))
         assert abs(g - fd) <= tolerance * abs(fd) + 0.3, (float(centre), g, fd)
         assert abs(fd) > 1.0  # a real slope, not a flat loss
@@ -236,8 +240,10 @@ def test_without_ground_truth_the_reference_is_the_pose_slam_gives_frame_t(tmp_p
     (data / "groundtruth.txt").unlink()
     out = tmp_path / "l"
     # One mode: the reference does not depend on the modes (whose landscapes the other tests check).
+    # The axes and grid of the module's landscape (its compiled `off` program), without --map-from gt.
+    landscape = [arg for arg in LANDSCAPE if arg not in ("--map-from", "gt")]
     assert main(["landscape", "--out", str(out), "--dataset", "tum", "--path", str(data), "--chunk", str(CHUNK),
-                 "--frame", str(FRAME), "--steps", "3", "--axes", "tx", "--extent-cm", "1", "--modes", "off"]) == 0
+                 *landscape, "--modes", "off"]) == 0
     doc = json.loads((out / "landscape.json").read_text())
     assert doc["reference"] == "tracked"
     sequence = open_sequence("tum", data)
@@ -245,6 +251,9 @@ def test_without_ground_truth_the_reference_is_the_pose_slam_gives_frame_t(tmp_p
     # The map as the CLI built it, through the program it exported (the direct call gives the same bits: see
     # test_programs).
     state = slam_run(frames[:FRAME], config(), sequence.intrinsics, chunk=CHUNK, call=exported_call()).state
-    _, outputs = jax.jit(step)(state, to_device(frames[FRAME]), config(), sequence.intrinsics)
-    assert not bool(outputs.retried)
-    np.testing.assert_allclose(np.asarray(doc["reference_w2c"]), np.asarray(outputs.w2c), atol=2e-6)
+    # SLAM's step on frame T: the scan of the same program over a chunk whose other frames are padding.
+    chunk = to_device(stack_frames([frames[FRAME]] * CHUNK))
+    valid = jnp.arange(CHUNK) == 0
+    _, outputs = exported_call()(run_chunk, state, chunk, valid, config(), sequence.intrinsics, None)
+    assert not bool(outputs.retried[0])
+    np.testing.assert_allclose(np.asarray(doc["reference_w2c"]), np.asarray(outputs.w2c[0]), atol=2e-6)

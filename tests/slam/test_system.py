@@ -13,10 +13,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from gsjax.app.compilation_cache import exported_call
 from gsjax.camera import constant_velocity, orthonormalize
 from gsjax.config_text import apply_overrides
 from gsjax.data.frame import without_ground_truth
-from gsjax.slam.system import run_chunk
+from gsjax.slam import system
 from tests.support.tiny_slam import (
     CHUNK,
     FRAMES,
@@ -31,6 +32,13 @@ from tests.support.tiny_slam import (
     tiny_sequence,
     trees_differ,
 )
+
+
+def run_chunk(state, chunk, valid, config, intrinsics):
+    """:func:`gsjax.slam.system.run_chunk` through the program ``gsjax run`` exports for the same config and shapes
+    (the CLI tests' program: one compilation for both; the exported and the direct call give the same bits,
+    test_programs)."""
+    return exported_call()(system.run_chunk, state, chunk, valid, config, intrinsics, None)
 
 
 def concat(*outputs):
@@ -117,7 +125,7 @@ def test_vmap_over_configs_and_states_equals_the_separate_runs(mode):
     config_a = tiny_config(mode)
     config_b = apply_overrides(config_a, dict(SWEPT))
     configs, states = stack(config_a, config_b), stack(initial(0), initial(1))
-    batched = jax.vmap(run_chunk, in_axes=(0, None, None, 0, None))(
+    batched = jax.vmap(system.run_chunk, in_axes=(0, None, None, 0, None))(
         states, frames(0, CHUNK), jnp.ones(CHUNK, bool), configs, tiny_sequence().intrinsics
     )
     separate = [run_first_chunk(mode, 0), run_first_chunk(mode, 1, SWEPT)]
