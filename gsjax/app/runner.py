@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -275,7 +274,7 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
         progress.close()
         checkpoints.close()
 
-    timings["compile_s_estimate"] = _compile_estimate(ledger.first_chunk_s, timings["slam_s"], total, options.chunk)
+    timings["compile_s_estimate"] = compile_estimate(ledger.first_chunk_s, timings["slam_s"], total, options.chunk)
     return write_outputs(sequence, config, options.outputs, state, outputs, timings, record,
                          [*input_warnings, *ledger.warnings, *resume_warnings], ledger.checkpoints, frames=kept)
 
@@ -294,9 +293,12 @@ def _check_resumable(saved: dict, key_now: dict, out: Path) -> None:
             )
 
 
-def _compile_estimate(first_chunk_s, slam_s, total, chunk) -> float | None:
-    chunks = math.ceil(total / chunk)
-    if first_chunk_s is None or chunks < 2:
+def compile_estimate(first_chunk_s: float | None, slam_s: float, total: int, chunk: int) -> float | None:
+    """Seconds of the first chunk beyond its frames' steady cost: the first chunk's time less ``chunk`` frames at
+    the later chunks' rate per real frame (a short last chunk is padded, and padding frames cost next to nothing);
+    None with a single chunk."""
+    later_frames = total - chunk
+    if first_chunk_s is None or later_frames <= 0:
         return None
-    steady = (slam_s - first_chunk_s) / (chunks - 1)
-    return max(0.0, first_chunk_s - steady)
+    per_frame = (slam_s - first_chunk_s) / later_frames
+    return max(0.0, first_chunk_s - per_frame * chunk)

@@ -13,7 +13,7 @@ import pytest
 
 from gsjax.app.checkpoints import Checkpoints
 from gsjax.app.run_dir import holder
-from gsjax.app.runner import run_slam
+from gsjax.app.runner import compile_estimate, run_slam
 from gsjax.config_text import apply_overrides
 from gsjax.eval.run_metrics import read_run_metrics
 from gsjax.io.ply import read_ply
@@ -181,3 +181,12 @@ def test_a_run_reads_each_frame_once(tmp_path):
     sequence.read_host = lambda i: (reads.append(i), read(i))[1]
     run_slam(sequence, tiny_config(), run_options(tmp_path / "run"))
     assert sorted(reads) == [0, *range(FRAMES)]
+
+
+def test_the_compile_estimate_counts_the_later_chunks_real_frames_not_their_padding():
+    """10 frames in chunks of 8 at 0.5 s a frame, plus 3 s of compilation in the first chunk: the first chunk takes
+    7 s, the second (2 real frames, 6 padding) 1 s."""
+    assert compile_estimate(7.0, 8.0, 10, 8) == pytest.approx(3.0)
+    assert compile_estimate(5.0, 9.0, 16, 8) == pytest.approx(1.0)  # two full chunks: 4 s each, 1 s beyond
+    assert compile_estimate(2.0, 2.0, 8, 8) is None and compile_estimate(None, 2.0, 16, 8) is None
+    assert compile_estimate(3.0, 11.0, 16, 8) == 0.0  # a first chunk faster than the steady rate: no compilation
