@@ -12,6 +12,8 @@ that goes wrong (a module JAX cannot export or read back) falls back to calling 
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import logging
 import os
@@ -78,9 +80,28 @@ class ExportedPrograms:
         self._digest = self._digest or source_digest()
         key = program_key(fn, args, self._digest)
         program = self._programs.get(key)
-        if program is None:
+        if program is not None:
+            return program(*committed(args))
+        # The first call compiles (or loads from JAX's cache) and dispatches: one process at a time per program, so
+        # processes that start together (a multi-process sweep, the test workers) compile it once, the others
+        # load it. Dispatch is asynchronous: the lock is not held while the program runs.
+        with self._compiling(key):
             program = self._programs[key] = self._load(key) or self._export(fn, args, key)
-        return program(*committed(args))
+            return program(*committed(args))
+
+    @contextlib.contextmanager
+    def _compiling(self, key: str):
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.directory / f"{key}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError:  # a read-only cache: compile without the lock
+            yield
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # released by the kernel if this process dies
+            yield
+        finally:
+            os.close(fd)
 
     def _path(self, key: str) -> Path:
         return self.directory / f"{key}.exported"

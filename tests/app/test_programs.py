@@ -5,13 +5,18 @@ back."""
 from __future__ import annotations
 
 import dataclasses
+import fcntl
+import os
+import threading
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from gsjax import slam
 from gsjax.app import programs
-from gsjax.app.programs import ExportedPrograms, program_key
+from gsjax.app.programs import ExportedPrograms, program_key, source_digest
 from gsjax.slam.system import run_chunk
 from tests.support.tiny_slam import CHUNK, assert_trees_equal, tiny_config, tiny_sequence
 
@@ -82,3 +87,22 @@ def test_the_source_digest_changes_with_any_module(tmp_path):
     before = programs.source_digest(package)
     (package / "sub" / "b.py").write_text("y = 3\n")
     assert programs.source_digest(package) != before
+
+
+def test_a_first_call_waits_while_another_process_compiles_the_same_program(tmp_path):
+    """The first call of a program in a process takes the program's lock (a flock beside its file: another process
+    compiling the same program holds it), so processes that start together compile it once."""
+    store = ExportedPrograms(tmp_path)
+    add_one = jax.jit(lambda x: x + 1.0)
+    x = jnp.zeros(3)
+    lock = os.open(tmp_path / f"{program_key(add_one, (x,), source_digest())}.lock", os.O_RDWR | os.O_CREAT)
+    fcntl.flock(lock, fcntl.LOCK_EX)  # as another process compiling it would
+    results = []
+    caller = threading.Thread(target=lambda: results.append(store.call(add_one, x)))
+    caller.start()
+    caller.join(1.0)
+    assert caller.is_alive() and not results  # waiting for the lock
+    os.close(lock)
+    caller.join(60)
+    np.testing.assert_array_equal(np.asarray(results[0]), np.ones(3))
+    assert store.call(add_one, x) is not None  # later calls take no lock
