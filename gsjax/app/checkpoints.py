@@ -75,9 +75,10 @@ class RunLedger:
     resumed run continues it exactly.
 
     Attributes:
-      capacity: the map's capacity; record: what a resume must match (:func:`gsjax.app.runner.resume_key`).
+      capacity: the map's capacity; record: what a resume must match (:meth:`gsjax.eval.run_input.RunInput.resume_key`).
       frames_done: frames processed; timings: seconds per stage so far; first_chunk_s: the first chunk's seconds.
-      warnings: the warnings found while running; depth_units_checked: whether the depth unit check ran.
+      warnings: unused (metrics.json words the warnings from the outputs, `gsjax.app.run_warnings`); kept so
+        older checkpoints read back. depth_units_checked: whether the depth unit check ran.
       checkpoints: the checkpoints so far; segments: [a, b) frame ranges of the per-frame output files;
       keyframes_saved: keyframe slots whose images are on disk.
     """

@@ -7,6 +7,7 @@ for PSNR / MS-SSIM / SSIM / depth L1 (and CB-KNN's K and rho maps when CB-KNN sm
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -14,10 +15,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gsjax.app.run_warnings import run_warnings
 from gsjax.config_text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.eval.image import render_metrics_splatam
-from gsjax.eval.run_metrics import CBKNNSummary, RenderMetrics, RunMetrics, TrajectoryMetrics
+from gsjax.eval.run_input import RunInput
+from gsjax.eval.run_metrics import CBKNNSummary, RenderMetrics, RunMetrics
 from gsjax.eval.trajectory import ate_rmse_c2w, evaluate_trajectory
 from gsjax.io.atomic import atomic_write_json
 from gsjax.io.images import render_panel, save_rgb_png
@@ -42,19 +45,38 @@ class OutputOptions(NamedTuple):
 
 
 def run_record(sequence: Sequence, config: SlamConfig, *, chunk: int, seed: int, describe: dict | None = None,
-               frames: int | None = None, **extra) -> dict:
+               frames: int | None = None, sweep: dict | None = None) -> RunInput:
     """What ``config.json`` holds for a run of ``frames`` (default: all) of ``sequence``: ``describe`` (the command's
     account of the input), the size, chunk and seed, the camera (intrinsics at the working resolution, the depth
-    files' units per metre), the config as a dict, and ``extra`` entries."""
+    files' units per metre), the config as a dict, and a sweep's ``sweep`` entry."""
     k = sequence.intrinsics
     camera = dict(fx=float(k.fx), fy=float(k.fy), cx=float(k.cx), cy=float(k.cy), width=k.width, height=k.height,
                   depth_scale=sequence.depth_scale)
-    return dict(describe or {}, frames=len(sequence) if frames is None else frames, width=k.width, height=k.height,
-                chunk=chunk, seed=seed, camera=camera, config=config_to_dict(config), **extra)
+    return RunInput(describe=dict(describe or {}), frames=len(sequence) if frames is None else frames, width=k.width,
+                    height=k.height, chunk=chunk, seed=seed, camera=camera, config=config_to_dict(config), sweep=sweep)
+
+
+def finish_run(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: dict,
+               timings: dict, record: RunInput, *, input_warnings: Iterable[str] = (),
+               resume_warnings: Iterable[str] = (), checkpoints: CheckpointLedger | None = None,
+               frames: dict | None = None) -> RunMetrics:
+    """The one way from a finished run to ``RunMetrics`` and every output file, for ``gsjax run`` and ``gsjax
+    sweep``: ``metrics.json``'s warnings are ``input_warnings`` (what opening the sequence reported), the run's own
+    (:func:`gsjax.app.run_warnings.run_warnings` of ``outputs``) and ``resume_warnings``; then
+    :func:`write_outputs`. Arguments as there."""
+    read = _reader(sequence, frames)
+    warnings = [*input_warnings, *run_warnings(sequence, config, outputs, read), *resume_warnings]
+    return write_outputs(sequence, config, options, state, outputs, timings, record, warnings, checkpoints,
+                         frames=frames)
+
+
+def _reader(sequence: Sequence, frames: dict | None):
+    """Frame ``t`` from ``frames`` when there, else read from ``sequence``."""
+    return sequence.read_host if not frames else (lambda t: frames[t] if t in frames else sequence.read_host(t))
 
 
 def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: dict,
-                  timings: dict, record: dict, warnings: list[str],
+                  timings: dict, record: RunInput, warnings: list[str],
                   checkpoints: CheckpointLedger | None = None, frames: dict | None = None) -> RunMetrics:
     """Evaluate a finished run and write ``trajectory.txt``, ``groundtruth.txt`` (when the sequence has ground
     truth), ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and ``metrics.json`` into
@@ -81,8 +103,7 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
     # Every frame with a valid GT pose is evaluated; the rigid alignment absorbs the world frames (the SLAM one is
     # the first camera), so frame 0 needs no ground truth.
     if gt_valid.sum() >= 3:
-        trajectory = TrajectoryMetrics(**evaluate_trajectory(timestamps, est_c2w, timestamps, gt_c2w,
-                                                             gt_valid=gt_valid))
+        trajectory = evaluate_trajectory(timestamps, est_c2w, timestamps, gt_c2w, gt_valid=gt_valid)
         identity = np.broadcast_to(np.eye(4), est_c2w.shape).copy()
         constant_pose = 100 * ate_rmse_c2w(identity, gt_c2w, gt_valid).value_m
         aligned = ate_rmse_c2w(est_c2w, gt_c2w, gt_valid)
@@ -92,16 +113,16 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
     else:
         plot_trajectory_top_view(out / "trajectory.png", est_c2w[:, :3, 3], None,
                                  title=f"{sequence.name} (no ground truth)")
-    read = sequence.read_host if not frames else (lambda t: frames[t] if t in frames else sequence.read_host(t))
+    read = _reader(sequence, frames)
     render_metrics, cbknn = _render_metrics(sequence, read, config, options, state, outputs)
     write_ply(out / "map.ply", state.gaussians)
     timings["outputs_s"] = time.perf_counter() - t0
     slam_frames_per_s = len(est_c2w) / timings["slam_s"] if timings["slam_s"] > 0 else None
     metrics = RunMetrics(
-        dataset=record.get("dataset"),
+        dataset=record.describe.get("dataset"),
         frames=len(est_c2w),
-        width=record["width"],
-        height=record["height"],
+        width=record.width,
+        height=record.height,
         trajectory=trajectory,
         constant_pose_ate_rmse_c2w_cm=constant_pose,
         render=render_metrics,
@@ -122,8 +143,8 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
         nonfinite_gaussians=int(state.nonfinite_gaussians),
         checkpoints=checkpoints.summary() if checkpoints is not None else None,
         warnings=list(warnings),
-        camera=record["camera"],
-        config=record["config"],
+        camera=record.camera,
+        config=record.config,
         world_from_map=np.asarray(anchor, np.float64).tolist(),
         keyframe_frames=[int(t) for t in np.flatnonzero(outputs["keyframe"])],
         # (a run resumed from a checkpoint of an older gsjax may lack a series)

@@ -31,8 +31,8 @@ from gsjax.app.compilation_cache import exported_call
 from gsjax.app.memory import limit_malloc_arenas
 from gsjax.app.progress import Progress
 from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
-from gsjax.app.run_outputs import OutputOptions, is_evaluation_frame, run_record, write_outputs
-from gsjax.data.frame import Frame
+from gsjax.app.run_outputs import OutputOptions, finish_run, is_evaluation_frame, run_record
+from gsjax.app.run_warnings import run_warnings
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.eval.trajectory import ate_so_far
@@ -43,10 +43,6 @@ from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs
 
 log = logging.getLogger("gsjax")
-
-# Median depth (m) of a frame outside this range means the depth scale is almost surely wrong for an indoor scene.
-PLAUSIBLE_MEDIAN_DEPTH_M = (0.1, 20.0)
-
 
 @dataclasses.dataclass(frozen=True)
 class RunOptions:
@@ -93,34 +89,6 @@ class RunOptions:
 
 def _outputs_to_lists(outputs: StepOutputs, count: int) -> dict:
     return {name: np.asarray(value)[:count].tolist() for name, value in outputs._asdict().items()}
-
-
-def _depth_unit_warning(sequence: Sequence, index: int, frame: Frame) -> str | None:
-    """A warning when frame ``index``'s median valid depth is implausible for an indoor RGB-D camera."""
-    depth = np.asarray(frame.depth)
-    median = float(np.median(depth[depth > 0]))
-    low, high = PLAUSIBLE_MEDIAN_DEPTH_M
-    if low <= median <= high:
-        return None
-    scale = f"{sequence.depth_scale:g} raw units per metre" if sequence.depth_scale else "the dataset's scale"
-    return (f"{sequence.describe_frame(index)}: median depth {median:.3g} m is outside {low:g}-{high:g} m; the depth "
-            f"scale ({scale}) looks wrong for this recording: give the right one with --depth-scale S")
-
-
-def _skipped_warning(sequence: Sequence, index: int, frame: Frame, config: SlamConfig, started: bool) -> str:
-    fraction = float(np.mean(np.asarray(frame.depth) > 0))
-    then = "" if started else "; the map starts at the first frame with depth"
-    return (f"{sequence.describe_frame(index)}: only {100 * fraction:.1f}% of the pixels have valid depth (below "
-            f"min_valid_depth {100 * float(config.min_valid_depth):g}%); the frame is not tracked or mapped, its pose "
-            f"is the constant-velocity prediction{then}")
-
-
-def _divergence_warning(sequence: Sequence, index: int, diverged: bool) -> str:
-    if diverged:
-        return (f"{sequence.describe_frame(index)}: tracking diverged twice (beyond tracking.max_step_m / "
-                "max_step_deg of the constant-velocity prediction); the frame keeps the prediction")
-    return (f"{sequence.describe_frame(index)}: tracking diverged (a loss jump or a pose beyond the step bound); "
-            "retried once with smaller steps")
 
 
 def run_slam(
@@ -181,7 +149,7 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
 
     state = like(capacity)
     outputs: dict[str, list] = {}
-    ledger = RunLedger(capacity=capacity, record=resume_key(record),
+    ledger = RunLedger(capacity=capacity, record=record.resume_key(),
                        timings=dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0))
     resume_warnings: list[str] = []  # about this resume (a checkpoint that could not be read)
     checkpoints = Checkpoints(out / "checkpoints")
@@ -203,14 +171,10 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
             fell_back("no checkpoint could be read: the run starts from frame 0")
     ledger.checkpoints.every = options.checkpoint_every
     timings = ledger.timings  # cover the whole run, resumed or not
-    atomic_write_json(out / "config.json", record)
+    atomic_write_json(out / "config.json", record.to_json())
 
     _, gt_c2w, gt_valid = sequence.gt_trajectory()
     progress = Progress(total, ledger.frames_done, options.progress)
-
-    def warn(message: str) -> None:
-        ledger.warnings.append(message)  # kept in checkpoints, so a resumed run reports it too
-        progress.write(f"warning: {message}", file=sys.stderr)
 
     def on_grow(dropped, first, last, new_capacity):
         progress.write(f"capacity: {dropped} new Gaussians found no free slot at frames {first}-{last}; growing the "
@@ -228,18 +192,12 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
             timings["regrow_s"] += chunk.regrow_seconds
             if ledger.first_chunk_s is None:
                 ledger.first_chunk_s = chunk.seconds
-            # The core decided which frames had usable depth; the host only words the warnings.
-            processed = np.flatnonzero(~chunk_out.skipped)
-            if not ledger.depth_units_checked and processed.size:
-                ledger.depth_units_checked = True
-                message = _depth_unit_warning(sequence, done + int(processed[0]), chunk.frames[processed[0]])
-                if message:
-                    warn(message)
-            for i in np.flatnonzero(chunk_out.skipped):
-                warn(_skipped_warning(sequence, done + int(i), chunk.frames[i], config,
-                                      started=int(chunk_out.num_gaussians[i]) > 0))
-            for i in np.flatnonzero(chunk_out.retried):
-                warn(_divergence_warning(sequence, done + int(i), bool(chunk_out.diverged[i])))
+            # Printed as they happen; metrics.json lists them again from all the outputs (finish_run).
+            real = {name: np.asarray(value)[:count] for name, value in chunk_out._asdict().items()}
+            for message in run_warnings(sequence, config, real, lambda t: chunk.frames[t - done], start=done,
+                                        depth_units=not ledger.depth_units_checked):
+                progress.write(f"warning: {message}", file=sys.stderr)
+            ledger.depth_units_checked |= bool(np.any(~real["skipped"]))
             kept.update((done + i, frame) for i, frame in enumerate(chunk.frames)
                         if is_evaluation_frame(done + i, options.eval_every))
             for name, values in _outputs_to_lists(chunk_out, count).items():
@@ -275,13 +233,9 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
         checkpoints.close()
 
     timings["compile_s_estimate"] = compile_estimate(ledger.first_chunk_s, timings["slam_s"], total, options.chunk)
-    return write_outputs(sequence, config, options.outputs, state, outputs, timings, record,
-                         [*input_warnings, *ledger.warnings, *resume_warnings], ledger.checkpoints, frames=kept)
-
-
-def resume_key(record: dict) -> dict:
-    """What of a run's ``config.json`` record a resume must match: the size, chunk, seed, camera and config."""
-    return {k: record[k] for k in ("frames", "width", "height", "chunk", "seed", "camera", "config")}
+    return finish_run(sequence, config, options.outputs, state, outputs, timings, record,
+                      input_warnings=input_warnings, resume_warnings=resume_warnings, checkpoints=ledger.checkpoints,
+                      frames=kept)
 
 
 def _check_resumable(saved: dict, key_now: dict, out: Path) -> None:

@@ -209,7 +209,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
 
 def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: list[int], options: SweepOptions,
            writer: bool, describe: dict | None, input_warnings: tuple[str, ...], say) -> list[dict]:
-    from gsjax.app.run_outputs import OutputOptions, is_evaluation_frame, run_record, write_outputs
+    from gsjax.app.run_outputs import OutputOptions, finish_run, is_evaluation_frame, run_record
 
     points = expand_grid(base, axes, seeds)
     out = Path(options.out)
@@ -282,11 +282,11 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
                                    batch_size=len(batch))
                 if writer:
                     run_dir.mkdir(parents=True, exist_ok=True)
-                    atomic_write_json(run_dir / "config.json", record)
-                    metrics = write_outputs(sequence, point.config,
-                                            OutputOptions(run_dir, options.eval_every, options.samples),
-                                            jax.device_get(state), run_outputs, run_timings, record,
-                                            list(input_warnings), frames=kept)
+                    atomic_write_json(run_dir / "config.json", record.to_json())
+                    metrics = finish_run(sequence, point.config,
+                                         OutputOptions(run_dir, options.eval_every, options.samples),
+                                         jax.device_get(state), run_outputs, run_timings, record,
+                                         input_warnings=input_warnings, frames=kept)
                     rows.append(_row(point, metrics, seconds, run_dir.relative_to(out)))
             timings["outputs_s"] += time.perf_counter() - t0
     finally:

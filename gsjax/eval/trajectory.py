@@ -25,6 +25,7 @@ import numpy as np
 
 from gsjax.camera import invert_rigid, rotation_angle_rad
 from gsjax.eval.association import associate_timestamps
+from gsjax.eval.run_metrics import TrajectoryMetrics
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -316,8 +317,8 @@ def evaluate_trajectory(
     gt_valid: npt.ArrayLike | None = None,
     max_dt: float = 0.02,
     with_scale: bool = False,
-) -> dict:
-    """All trajectory metrics of an estimate against ground truth, as a JSON-friendly dict.
+) -> TrajectoryMetrics:
+    """All trajectory metrics of an estimate against ground truth (JSON-friendly: ``dataclasses.asdict``).
 
     Poses are associated by timestamp (:func:`gsjax.eval.association.associate_timestamps`), GT poses that are
     not finite or have ``gt_valid`` False are skipped and counted, then ATE (both variants, see the module
@@ -330,7 +331,8 @@ def evaluate_trajectory(
       with_scale: similarity alignment for ``ate_*_c2w`` and RPE (the SplaTAM variant stays rigid).
 
     Returns:
-      dict with float metrics (units in the key: ``_m``, ``_cm``, ``_deg``; None where undefined), counts
+      :class:`gsjax.eval.run_metrics.TrajectoryMetrics`: float metrics (units in the name: ``_m``, ``_cm``,
+      ``_deg``; None where undefined), counts
       (``num_*``), the alignment, ``per_frame`` (the per-frame errors behind the statistics: ``est_index`` and
       ``ate_c2w_m`` of every evaluated estimate row; ``rpe_est_index``, the second row of each RPE pair, with
       ``rpe_trans_m`` and ``rpe_rot_deg``) and ``definitions``.
@@ -353,7 +355,7 @@ def evaluate_trajectory(
     ate = ate_rmse_c2w(est, gt, used, with_scale=with_scale)
     ate_splatam = ate_splatam_mean_w2c(est, gt, used)
     rel = rpe(ate.alignment.apply_c2w(est), gt, used)
-    return {
+    return TrajectoryMetrics(**{
         "ate_rmse_c2w_m": ate.value_m,
         "ate_rmse_c2w_cm": 100.0 * ate.value_m,
         "ate_mean_c2w_m": _mean(ate.errors_m),
@@ -382,4 +384,4 @@ def evaluate_trajectory(
             "rpe_rot_deg": rel.rot_errors_deg.tolist(),
         },
         "definitions": dict(DEFINITIONS),
-    }
+    })

@@ -126,7 +126,7 @@ def _table(header: list[str], rows: list[list[str]], raw: bool = False) -> str:
 
 
 def _describe(run: RunRecord) -> str:
-    r, m = run.record, run.metrics
+    r, m = run.record.to_json() if run.record else {}, run.metrics
     parts = [f"dataset {r.get('dataset') or m.dataset or '?'}"]
     if r.get("sequence"):
         parts.append(f"sequence {r['sequence']}")
@@ -290,7 +290,7 @@ def _cbknn_section(runs: list[RunRecord]) -> str | None:
     parts = []
     for run in runs:
         cbknn = run.metrics.cbknn
-        mode = run.record.get("cbknn") or (cbknn.mode if cbknn else None)
+        mode = _cbknn_mode(run) or (cbknn.mode if cbknn else None)
         title = f"<h3>{_e(run.name)}</h3>" if len(runs) > 1 else ""
         if cbknn:
             rows = [[str(s["frame"]), f"{s['gamma']:.2f}", f"{s['k_mean']:.2f}", f"{s['k_min']}-{s['k_max']}",
@@ -308,7 +308,7 @@ def _cbknn_section(runs: list[RunRecord]) -> str | None:
                                        "samples; no per-pixel kernel, so no K or rho maps."))
         elif len(runs) > 1 and mode:
             parts.append(title + _note(f"CB-KNN {mode}."))
-    if not any(run.metrics.cbknn or run.record.get("cbknn") == "code_parity" for run in runs):
+    if not any(run.metrics.cbknn or _cbknn_mode(run) == "code_parity" for run in runs):
         return None
     return _note("The final map rendered with CB-KNN at the sample frames' estimated poses and their motion gamma: "
                  "K is the kernel size per cell, rho the density of Gaussian centres (1 = mean of the non-empty "
@@ -325,6 +325,11 @@ def _warnings_section(runs: list[RunRecord]) -> str:
     return "".join(parts)
 
 
+def _cbknn_mode(run: RunRecord) -> str | None:
+    """The CB-KNN mode the command line asked for (``config.json``), or None."""
+    return run.record.describe.get("cbknn") if run.record else None
+
+
 def _flatten(tree, prefix: str = "") -> dict[str, object]:
     if isinstance(tree, dict):
         flat = {}
@@ -337,7 +342,7 @@ def _flatten(tree, prefix: str = "") -> dict[str, object]:
 def _config_section(runs: list[RunRecord]) -> str:
     parts = []
     if len(runs) > 1:
-        flat = [_flatten(run.record) for run in runs]
+        flat = [_flatten(run.record.to_json() if run.record else {}) for run in runs]
         keys = [k for k in dict.fromkeys(k for f in flat for k in f) if len({json.dumps(f.get(k)) for f in flat}) > 1]
         if keys:
             rows = [[run.name] + [json.dumps(f.get(k)) for k in keys] for run, f in zip(runs, flat)]
@@ -345,7 +350,7 @@ def _config_section(runs: list[RunRecord]) -> str:
         else:
             parts.append(_note("The runs' configs are identical."))
     for run in runs:
-        text = json.dumps(run.record, indent=2) if run.record else "(no config.json)"
+        text = json.dumps(run.record.to_json(), indent=2) if run.record else "(no config.json)"
         summary = "config.json" if len(runs) == 1 else f"{run.name}: config.json"
         parts.append(f"<details{' open' if len(runs) == 1 else ''}><summary>{_e(summary)}</summary>"
                      f"<pre>{_e(text)}</pre></details>")

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.eval.association import associate_timestamps
+from gsjax.eval.run_input import RunInput
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.eval.trajectory import Drift, drift, ground_truth_on_estimate
 from gsjax.io.trajectory import read_tum_trajectory
@@ -32,7 +33,8 @@ class RunRecord:
 
     Attributes:
       path: the run directory; name: how the report names it (the directory's name, unless that is ambiguous).
-      metrics: ``metrics.json``'s record; record: ``config.json`` (dataset, preset, CB-KNN mode, camera, config, ...).
+      metrics: ``metrics.json``'s record; record: ``config.json``'s (dataset, preset, CB-KNN mode, camera, config,
+        ...), or None when the run has none.
       timestamps: [T] s; est_c2w: [T, 4, 4] camera-to-world (m), as in ``trajectory.txt``.
       gt_timestamps, gt_c2w: ``groundtruth.txt`` ([M] s, [M, 4, 4]), or None.
       panels: ``renders/frame_T.png`` as (T, path), by frame; cbknn_panels: ``renders/cbknn_T.png`` likewise.
@@ -41,7 +43,7 @@ class RunRecord:
     path: Path
     name: str
     metrics: RunMetrics
-    record: dict
+    record: RunInput | None
     timestamps: np.ndarray
     est_c2w: np.ndarray
     gt_timestamps: np.ndarray | None
@@ -126,7 +128,11 @@ def read_run(path: str | Path, metrics: RunMetrics | None = None) -> RunRecord:
             metrics = RunMetrics.from_json(value)
         except ValueError as error:
             raise RunRecordError(f"{path / 'metrics.json'}: {error}") from None
-    record = _read_json(path / "config.json", required=False) or {}
+    value = _read_json(path / "config.json", required=False)
+    try:
+        record = None if value is None else RunInput.from_json(value)
+    except ValueError as error:
+        raise RunRecordError(f"{path / 'config.json'}: {error}") from None
     timestamps, est_c2w = _read_trajectory(path / "trajectory.txt", required=True)
     gt_timestamps, gt_c2w = _read_trajectory(path / "groundtruth.txt", required=False)
     renders = path / "renders"

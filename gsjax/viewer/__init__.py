@@ -53,14 +53,14 @@ def open_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080) -> 
         gaussians = read_ply(ply)
     except ValueError as error:
         raise RunRecordError(str(error)) from None
-    camera = run.metrics.camera or run.record.get("camera")
+    camera = run.metrics.camera or (run.record.camera if run.record else None)
     if not camera:
         raise RunRecordError(f"{run.path / 'metrics.json'}: no 'camera' (the run predates the viewer)")
     intrinsics = make_intrinsics(camera["fx"], camera["fy"], camera["cx"], camera["cy"], camera["height"],
                                  camera["width"])
     try:
-        settings = config_from_dict(run.record["config"]).raster
-    except (KeyError, TypeError, ValueError):  # an older or edited config: the default rasterizer
+        settings = config_from_dict(run.record.config if run.record else None).raster
+    except (KeyError, TypeError, ValueError, AttributeError):  # an older or edited config: the default rasterizer
         settings = RasterSettings()
     renderer = MapRenderer(intrinsics, settings)
     renderer.set_map(gaussians)

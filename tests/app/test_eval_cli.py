@@ -40,8 +40,8 @@ def test_eval_writes_the_metrics_json_and_prints_them(tmp_path, capsys):
     assert main(["eval", "--est", str(est), "--gt", str(gt), "--out", str(out), "--plots", str(tmp_path / "p")]) == 0
     metrics = json.loads(out.read_text())
     expected = evaluate_trajectory(*read_tum_trajectory(est), *read_tum_trajectory(gt), max_dt=0.02)
-    assert metrics["ate_rmse_c2w_m"] == pytest.approx(expected["ate_rmse_c2w_m"], rel=1e-12)
-    assert metrics["ate_splatam_mean_w2c_cm"] == pytest.approx(expected["ate_splatam_mean_w2c_cm"], rel=1e-12)
+    assert metrics["ate_rmse_c2w_m"] == pytest.approx(expected.ate_rmse_c2w_m, rel=1e-12)
+    assert metrics["ate_splatam_mean_w2c_cm"] == pytest.approx(expected.ate_splatam_mean_w2c_cm, rel=1e-12)
     assert metrics["num_evaluated"] == 40
     printed = capsys.readouterr().out
     assert "ate_rmse_c2w_cm" in printed and "ate_splatam_mean_w2c_cm" in printed and str(out) in printed
@@ -108,8 +108,8 @@ def test_eval_reads_the_gt_of_a_dataset_directory(tmp_path, capsys, dataset):
     expected = evaluate_trajectory(stamps, est, stamps, scene[3], gt_valid=valid)
     assert metrics["gt_dataset"] == dataset and metrics["num_associated"] == 5
     assert metrics["num_evaluated"] == valid.sum() and metrics["num_skipped_invalid_gt"] == 5 - valid.sum()
-    assert metrics["ate_rmse_c2w_m"] == pytest.approx(expected["ate_rmse_c2w_m"], rel=1e-6)
-    assert metrics["ate_splatam_mean_w2c_m"] == pytest.approx(expected["ate_splatam_mean_w2c_m"], rel=1e-6)
+    assert metrics["ate_rmse_c2w_m"] == pytest.approx(expected.ate_rmse_c2w_m, rel=1e-6)
+    assert metrics["ate_splatam_mean_w2c_m"] == pytest.approx(expected.ate_splatam_mean_w2c_m, rel=1e-6)
     assert (tmp_path / "plots" / "trajectory_top.png").stat().st_size > 1000
 
 

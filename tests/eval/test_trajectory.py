@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 
 import evo.core.metrics as evo_metrics  # evo is a pinned test dependency (pyproject [test])
@@ -298,10 +299,10 @@ def test_evaluate_trajectory_agrees_with_evo_after_timestamp_association():
     traj_est.align(traj_ref)
     ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
     ape.process_data((traj_ref, traj_est))
-    assert metrics["num_associated"] == traj_est.num_poses == len(pick)
-    assert metrics["num_unassociated_est"] == 1
-    assert abs(metrics["ate_rmse_c2w_m"] - ape.get_statistic(evo_metrics.StatisticsType.rmse)) < 1e-9
-    assert metrics["ate_rmse_c2w_cm"] == pytest.approx(100 * metrics["ate_rmse_c2w_m"])
+    assert metrics.num_associated == traj_est.num_poses == len(pick)
+    assert metrics.num_unassociated_est == 1
+    assert abs(metrics.ate_rmse_c2w_m - ape.get_statistic(evo_metrics.StatisticsType.rmse)) < 1e-9
+    assert metrics.ate_rmse_c2w_cm == pytest.approx(100 * metrics.ate_rmse_c2w_m)
 
 
 def test_evaluate_trajectory_counts_invalid_gt_and_is_json_serialisable():
@@ -313,12 +314,12 @@ def test_evaluate_trajectory_counts_invalid_gt_and_is_json_serialisable():
     gt_valid = np.ones(50, bool)
     gt_valid[30] = False
     metrics = evaluate_trajectory(stamps, est, stamps, gt, gt_valid=gt_valid)
-    assert metrics["num_skipped_invalid_gt"] == 2
-    assert metrics["num_evaluated"] == 48
-    assert metrics["num_rpe_pairs"] == 49 - 4
-    decoded = json.loads(json.dumps(metrics, allow_nan=False))
-    assert decoded["ate_splatam_mean_w2c_m"] == metrics["ate_splatam_mean_w2c_m"]
-    for key, value in metrics.items():
+    assert metrics.num_skipped_invalid_gt == 2
+    assert metrics.num_evaluated == 48
+    assert metrics.num_rpe_pairs == 49 - 4
+    decoded = json.loads(json.dumps(dataclasses.asdict(metrics), allow_nan=False))
+    assert decoded["ate_splatam_mean_w2c_m"] == metrics.ate_splatam_mean_w2c_m
+    for key, value in dataclasses.asdict(metrics).items():
         if isinstance(value, float) and not key.endswith("_s"):
             assert key.endswith(("_m", "_cm", "_deg")), key
 
@@ -332,7 +333,7 @@ def test_evaluate_trajectory_does_not_depend_on_the_estimates_world_frame():
     moved = Alignment(random_rotation(rng), rng.standard_normal(3)).apply_c2w(est)
     b = evaluate_trajectory(stamps, moved, stamps, gt)
     for key in ("ate_rmse_c2w_m", "ate_splatam_mean_w2c_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg"):
-        assert b[key] == pytest.approx(a[key], rel=1e-9), key
+        assert getattr(b, key) == pytest.approx(getattr(a, key), rel=1e-9), key
 
 
 def test_evaluate_trajectory_without_overlap_is_an_error():
@@ -355,13 +356,13 @@ def test_evaluate_trajectory_per_frame_errors_are_the_ones_behind_the_statistics
     gt_valid = np.ones(40, bool)
     gt_valid[[5, 6, 20]] = False
     metrics = evaluate_trajectory(stamps, est, stamps, gt, gt_valid=gt_valid)
-    per_frame = metrics["per_frame"]
+    per_frame = metrics.per_frame
     assert per_frame["est_index"] == [i for i in range(40) if gt_valid[i]]
-    assert np.sqrt(np.mean(np.square(per_frame["ate_c2w_m"]))) == pytest.approx(metrics["ate_rmse_c2w_m"], rel=1e-12)
+    assert np.sqrt(np.mean(np.square(per_frame["ate_c2w_m"]))) == pytest.approx(metrics.ate_rmse_c2w_m, rel=1e-12)
     assert per_frame["rpe_est_index"] == [i + 1 for i in range(39) if gt_valid[i] and gt_valid[i + 1]]
     rms = lambda values: np.sqrt(np.mean(np.square(values)))  # noqa: E731
-    assert rms(per_frame["rpe_trans_m"]) == pytest.approx(metrics["rpe_trans_rmse_m"], rel=1e-12)
-    assert rms(per_frame["rpe_rot_deg"]) == pytest.approx(metrics["rpe_rot_rmse_deg"], rel=1e-12)
+    assert rms(per_frame["rpe_trans_m"]) == pytest.approx(metrics.rpe_trans_rmse_m, rel=1e-12)
+    assert rms(per_frame["rpe_rot_deg"]) == pytest.approx(metrics.rpe_rot_rmse_deg, rel=1e-12)
 
 
 def test_ground_truth_on_estimate_starts_at_the_estimates_pose_and_keeps_the_relative_motion():

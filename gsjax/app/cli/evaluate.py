@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from gsjax.app.cli import common
@@ -64,7 +65,7 @@ def run(args) -> int:
     sources = {"est": str(args.est), "gt": str(args.gt)}
     if args.dataset is not None:
         sources["gt_dataset"] = args.dataset
-    metrics = {**sources, **metrics}
+    metrics = {**sources, **dataclasses.asdict(metrics)}
     out = args.out if args.out is not None else args.est.with_suffix(".metrics.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out, metrics)
