@@ -121,7 +121,7 @@ def check_run_dir(out: Path, *, resume: bool = False, overwrite: bool = False,
     if present:
         if not (resume or overwrite):
             listed = ", ".join(name + ("/" if (out / name).is_dir() else "") for name in present)
-            again = "--resume to continue it, " if outputs == RUN_OUTPUTS else ""
+            again = "--resume to continue it, " if outputs in (RUN_OUTPUTS, SWEEP_OUTPUTS) else ""
             raise RunDirError(f"--out {out} holds a previous run ({listed}); nothing was changed: pass {again}"
                               "--overwrite to replace it, or choose another --out")
         return

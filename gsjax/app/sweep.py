@@ -40,10 +40,11 @@ from gsjax.app.compilation_cache import exported_call
 from gsjax.app.progress import Progress
 from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.sweep_devices import batch_mesh, place_batch, share_results, to_host
+from gsjax.app.sweep_resume import finished_runs, prepare_rerun, run_folder
 from gsjax.config_text import apply_overrides
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
-from gsjax.io.atomic import atomic_write_bytes, atomic_write_json
+from gsjax.io.atomic import atomic_write_bytes, atomic_write_json, remove_stale_temporaries
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import Group, batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
 from gsjax.slam.state import initial_state, keyframe_capacity_for
@@ -173,7 +174,8 @@ def _per_config(groups, members, parts, final_states, count):
 @dataclasses.dataclass(frozen=True)
 class SweepOptions:
     """Shell options of a sweep: ``out`` directory, frames per ``chunk``, ``batch`` configs per program call
-    (None: all), ``eval_every`` and ``samples`` as in ``gsjax run``, ``progress`` bar, ``overwrite``."""
+    (None: all), ``eval_every`` and ``samples`` as in ``gsjax run``, ``progress`` bar, ``overwrite``, ``resume``
+    (run only the configs a previous sweep into ``out`` did not finish: :mod:`gsjax.app.sweep_resume`)."""
 
     out: Path
     chunk: int = 8
@@ -183,6 +185,7 @@ class SweepOptions:
     samples: int = 1
     progress: bool = True
     overwrite: bool = False
+    resume: bool = False
 
     def __post_init__(self):
         for name in ("chunk", "eval_every", "samples"):
@@ -201,7 +204,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
     out = Path(options.out)
     writer = jax.process_index() == 0  # the other processes of a multi-host sweep write nothing
     if writer:
-        check_run_dir(out, overwrite=options.overwrite, outputs=SWEEP_OUTPUTS)
+        check_run_dir(out, resume=options.resume, overwrite=options.overwrite, outputs=SWEEP_OUTPUTS)
     sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
     with locked_run_dir(out) if writer else contextlib.nullcontext():
         return _sweep(sequence, base, axes, seeds, options, writer, describe, input_warnings, say)
@@ -217,11 +220,22 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
         if options.overwrite:
             clear_previous_run(out, SWEEP_OUTPUTS)
         out.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(out)
     k = sequence.intrinsics
     height, width_px, total = k.height, k.width, len(sequence)
+    done = {}
+    if options.resume:  # every process reads the same folder, so all agree on what is left
+        done = finished_runs(out, {p.index: run_record(sequence, p.config, chunk=options.chunk, seed=p.seed,
+                                                       describe=describe, frames=total, sweep=dict(values=p.values))
+                                   for p in points})
+        say(f"gsjax sweep --resume: {len(done)} of {len(points)} configs finished before; running the other "
+            f"{len(points) - len(done)}")
+        for point in points:
+            if writer and point.index not in done:
+                prepare_rerun(out, point.index)
     mesh = batch_mesh()
     devices = mesh.devices.size
-    groups = group_by_program(points)
+    groups = group_by_program([p for p in points if p.index not in done])
     statics = static_fields(base, axes)
     if statics:
         say(f"gsjax sweep: {', '.join(statics)} {'is' if len(statics) == 1 else 'are'} static (compile-time): "
@@ -232,10 +246,11 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
         batches += [group[i:i + size] for i in range(0, len(group), size)]
     width = vmap_width(options.vmap_width, devices)
     say(f"gsjax sweep: {len(points)} configs in {len(groups)} program(s), {len(batches)} batch(es) of up to "
-        f"{max(len(b) for b in batches)} on {devices} device(s), {width} config(s) vmapped per program call, "
-        f"{total} frames each")
+        f"{max((len(b) for b in batches), default=0)} on {devices} device(s), {width} config(s) vmapped per program "
+        f"call, {total} frames each")
     progress = Progress(total * len(batches), 0, options.progress and writer)
-    rows: list[dict] = []
+    rows = [_row(p, done[p.index], done[p.index].stage_timings_s.get("slam_s"),
+                 run_folder(out, p.index).relative_to(out)) for p in points if p.index in done]
     timings = dict(slam_s=0.0, regrow_s=0.0, read_frames_s=0.0, outputs_s=0.0, first_chunk_s=[])
     t_start = time.perf_counter()
     used_devices: set = set()
@@ -273,7 +288,7 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
             t0 = time.perf_counter()
             for i, point in enumerate(batch):
                 state, outputs = per_config[i]
-                run_dir = out / "runs" / f"{point.index:03d}"
+                run_dir = run_folder(out, point.index)
                 run_outputs = {name: np.asarray(v).tolist() for name, v in outputs._asdict().items()}
                 record = run_record(sequence, point.config, chunk=options.chunk, seed=point.seed, describe=describe,
                                     frames=total, sweep=dict(values=point.values, batch=number, batch_size=len(batch)))
@@ -301,7 +316,7 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
                            title=f"{sequence.name}: ATE RMSE (cm), mean over {len(seeds)} seed(s)")
         atomic_write_json(out / "sweep.json", dict(
             describe or {}, grid={a.field: list(a.values) for a in axes}, seeds=sorted({p.seed for p in points}),
-            configs=len(points), programs=len(groups), static_fields=statics, batches=len(batches),
+            configs=len(points), programs=len(group_by_program(points)), static_fields=statics, batches=len(batches),
             devices=devices, state_devices=len(used_devices), vmap_width=width, frames=total, width=width_px,
             height=height, wall_s=time.perf_counter() - t_start,
             timings=timings, warnings=list(input_warnings)))

@@ -31,6 +31,9 @@ def add(sub) -> None:
                         "ignored when XLA_FLAGS forces a count, and on accelerators)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the previous sweep in --out (removes gsjax's sweep outputs there, nothing else)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the sweep in --out: its finished configs (runs/NNN with a metrics.json) stay as "
+                        "they are, the others run again, and the tables cover them all")
     p.add_argument("--chunk", type=int, default=8, help="frames per jitted scan chunk (default 8)")
     p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -63,8 +66,8 @@ def run(args) -> int:
     configs = len(expand_grid(common.configure(args), axes, [args.seed])) * args.seeds
     options = SweepOptions(out=args.out, chunk=args.chunk, batch=args.batch, vmap_width=args.vmap_width,
                            eval_every=args.eval_every,
-                           progress=not args.no_progress, overwrite=args.overwrite)
-    check_run_dir(args.out, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
+                           progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume)
+    check_run_dir(args.out, resume=args.resume, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
     request_cpu_devices(args.devices or default_cpu_devices(batch_size(args.batch, configs)))
     maybe_initialize_distributed()
     (sequence, factor), input_warnings = common.dataset_warnings(lambda: common.open_run_sequence(args))

@@ -1,0 +1,60 @@
+"""``gsjax sweep --resume``: which configs a killed sweep finished, so only the others run again.
+
+A config is finished when its ``runs/NNN/metrics.json`` exists: a run writes it last, atomically, so its presence
+means every other output of the run is whole. A folder without it (a sweep killed inside that config, or while
+writing its outputs) is run again; its files are replaced and what a killed writer left (hidden temporaries) is
+removed. A finished run made with another config, or outside the grid, stops the resume before anything changes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from gsjax.app.run_dir import RunDirError
+from gsjax.eval.run_input import RunInput, read_run_input
+from gsjax.eval.run_metrics import RunMetrics, read_run_metrics
+from gsjax.io.atomic import remove_stale_temporaries
+
+
+def run_folder(out: Path, index: int) -> Path:
+    """The folder of config ``index`` of the sweep in ``out``."""
+    return Path(out) / "runs" / f"{index:03d}"
+
+
+def finished_runs(out: Path, expected: dict[int, RunInput]) -> dict[int, RunMetrics]:
+    """The configs of the sweep in ``out`` a previous sweep finished, by index, with their metrics.
+
+    ``expected``: each config's ``config.json`` record as this sweep makes it; a finished run must match its size,
+    chunk, seed, camera, config (:meth:`RunInput.resume_key`) and grid values. Raises RunDirError naming the run
+    otherwise, having changed nothing.
+    """
+    runs = Path(out) / "runs"
+    done: dict[int, RunMetrics] = {}
+    if not runs.is_dir():
+        return done
+    for folder in sorted(p for p in runs.iterdir() if p.is_dir()):
+        if not (folder / "metrics.json").exists():
+            continue
+        index = int(folder.name) if folder.name.isdigit() else -1
+        if index not in expected:
+            raise RunDirError(f"--resume: {folder} is a finished run outside this sweep's {len(expected)} configs; "
+                              "resume with the same --grid and --seeds, or use --overwrite or a new --out")
+        try:
+            saved = read_run_input(folder / "config.json")
+            metrics = read_run_metrics(folder / "metrics.json")
+        except ValueError as error:
+            raise RunDirError(f"--resume: {error}") from None
+        want = expected[index]
+        if saved.resume_key() != want.resume_key() or (saved.sweep or {}).get("values") != want.sweep["values"]:
+            raise RunDirError(f"--resume: {folder} was made with a different config, size, chunk or seed than this "
+                              "sweep's; resume with the same options, or use --overwrite or a new --out")
+        done[index] = metrics
+    return done
+
+
+def prepare_rerun(out: Path, index: int) -> None:
+    """Remove what a killed writer left in config ``index``'s folder (hidden temporaries; never a whole output)."""
+    folder = run_folder(out, index)
+    for directory in (folder, folder / "renders"):
+        if directory.is_dir():
+            remove_stale_temporaries(directory)
