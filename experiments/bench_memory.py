@@ -18,7 +18,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from gsjax.app.bench import _peak_mib, bench_map, parse_size
+from gsjax.app.bench import bench_map, parse_size, peak_mib
 from gsjax.gaussians import Gaussians
 from gsjax.raster import RasterSettings
 from gsjax.slam.config import SlamConfig
@@ -52,7 +52,7 @@ def compiled_peaks(width: int, height: int, backend: str, slots_per_batch: int, 
     mapping = jax.jit(map_iteration).lower(fields).compile()
     return dict(size=f"{width}x{height}", backend=backend, k=k, gaussians=int(g.capacity),
                 batched=slots_per_batch != UNBOUNDED,
-                track_iter_peak_mib=_peak_mib(track), map_iter_peak_mib=_peak_mib(mapping))
+                track_iter_peak_mib=peak_mib(track), map_iter_peak_mib=peak_mib(mapping))
 
 
 def main() -> None:

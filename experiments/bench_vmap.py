@@ -16,7 +16,7 @@ import jax
 
 from gsjax.app.compilation_cache import enable_compilation_cache
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
-from gsjax.slam.driver import _run_batch_chunk, pad_chunk, stack_trees
+from gsjax.slam.driver import pad_chunk, run_batch_chunk, stack_trees
 from gsjax.slam.presets import preset, with_cbknn_mode
 from gsjax.slam.state import initial_state, keyframe_capacity_for
 from gsjax.slam.system import run_chunk
@@ -39,7 +39,7 @@ def main() -> None:
             call = lambda: run_chunk(state, frames, valid, config, k)  # noqa: E731
         else:
             states, configs = stack_trees([state] * b), stack_trees([config] * b)
-            call = lambda: _run_batch_chunk(states, frames, valid, configs, k, None)  # noqa: E731
+            call = lambda: run_batch_chunk(states, frames, valid, configs, k, None)  # noqa: E731
         t0 = time.perf_counter()
         jax.block_until_ready(call())
         t1 = time.perf_counter()

@@ -16,16 +16,19 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from gsjax.app.compilation_cache import enable_compilation_cache
-from gsjax.app.run_outputs import _eval_render
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.eval.image import render_metrics_splatam
 from gsjax.io.atomic import atomic_write_json
+from gsjax.raster import render
 from gsjax.slam import driver
 from gsjax.slam.presets import preset
+
+eval_render = jax.jit(render)
 
 RESULTS = Path(__file__).resolve().parents[1] / "experiments" / "results"
 EVAL_EVERY = 5
@@ -50,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     psnr = []
     for t in frames:
         frame = sequence.read_host(t)
-        out = _eval_render(result.state.gaussians, jnp.asarray(w2c[t]), sequence.intrinsics, config.raster)
+        out = eval_render(result.state.gaussians, jnp.asarray(w2c[t]), sequence.intrinsics, config.raster)
         psnr.append(float(render_metrics_splatam(out.color, out.depth, jnp.asarray(frame.color),
                                                  jnp.asarray(frame.depth))["psnr_db"]))
     blocks = {f"{b}-{b + BLOCK - 1}": float(np.mean([p for t, p in zip(frames, psnr) if b <= t < b + BLOCK]))

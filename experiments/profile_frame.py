@@ -86,7 +86,7 @@ def device_stages(sequence, config, frame_index: int, repeats: int) -> dict:
     from gsjax.slam.densify import densify
     from gsjax.slam.keyframes import select_window
     from gsjax.slam.mapping import gather_window_frames, map_window
-    from gsjax.slam.system import _predicted_pose, step
+    from gsjax.slam.system import predicted_pose, step
     from gsjax.slam.tracking import TrackingProblem, track_guarded
     from gsjax.slam.views import render_view
 
@@ -96,7 +96,7 @@ def device_stages(sequence, config, frame_index: int, repeats: int) -> dict:
     state = built.state
     frame = to_device(without_ground_truth(frames[frame_index]))
     g = state.gaussians
-    w2c0 = _predicted_pose(state)
+    w2c0 = predicted_pose(state)
     key = jax.random.PRNGKey(1)
     settings = config.raster
     grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
@@ -192,14 +192,14 @@ def compare(sequence, config, frame_index: int, repeats: int, variants: dict) ->
     from gsjax import slam
     from gsjax.config_text import apply_overrides
     from gsjax.data.frame import to_device, without_ground_truth
-    from gsjax.slam.system import _predicted_pose, step
+    from gsjax.slam.system import predicted_pose, step
     from gsjax.slam.tracking import TrackingProblem, track_guarded
 
     intrinsics = sequence.intrinsics
     frames = [sequence.read_host(i) for i in range(frame_index + 1)]
     state = slam.run(frames[:frame_index], config, intrinsics, seed=0).state
     frame = to_device(without_ground_truth(frames[frame_index]))
-    w2c0 = _predicted_pose(state)
+    w2c0 = predicted_pose(state)
     stages = dict(
         step=jax.jit(lambda c: step(state, frame, c, intrinsics)),
         track=jax.jit(lambda c: track_guarded(TrackingProblem(state.gaussians, frame.color, frame.depth, w2c0,

@@ -92,7 +92,9 @@ def _timed(fn: Callable, *args, repeats: int) -> tuple[float, float, object]:
     return compile_s, median_seconds(compiled, *args, repeats=repeats), compiled
 
 
-def _peak_mib(compiled) -> float | None:
+def peak_mib(compiled) -> float | None:
+    """Peak memory (MiB) of a compiled program by XLA's own account (arguments + outputs + temporaries - aliased),
+    or None where the backend gives none."""
     try:
         m = compiled.memory_analysis()
         total = m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes - m.alias_size_in_bytes
@@ -154,7 +156,7 @@ def measure(backend: str, width: int, height: int, gaussians: int | None, repeat
         fwd_bwd_ms=1e3 * t_bwd,
         track_iter_ms=1e3 * t_track,
         ns_per_px_cand=1e9 * t_bwd / (width * height * mean_list),
-        track_peak_mib=_peak_mib(compiled_track),
+        track_peak_mib=peak_mib(compiled_track),
         device_peak_mib=_device_peak_mib(),
         truncated_px=int(truncated),
     )

@@ -68,7 +68,9 @@ def pad_chunk(frames: list[Frame], size: int) -> tuple[Frame, jax.Array]:
 
 
 @jax.jit
-def _run_batch_chunk(states, frames, valid, configs, intrinsics, poses):
+def run_batch_chunk(states, frames, valid, configs, intrinsics, poses):
+    """:func:`gsjax.slam.system.run_chunk` vmapped over stacked ``states`` and ``configs`` (leading axis V), the
+    same frames for all: the program a sweep calls for a group of stacked configs -> (states, outputs [V, C, ...])."""
     return jax.vmap(run_chunk, in_axes=(0, None, None, 0, None, None))(states, frames, valid, configs, intrinsics,
                                                                         poses)
 
@@ -130,7 +132,7 @@ class BatchChunk(NamedTuple):
 
 def _call(group: Group, frames, valid, intrinsics, poses, call: Callable | None):
     if group.stacked:
-        return _run_batch_chunk(group.state, frames, valid, group.config, intrinsics, poses)
+        return run_batch_chunk(group.state, frames, valid, group.config, intrinsics, poses)
     if call is not None:
         return call(run_chunk, group.state, frames, valid, group.config, intrinsics, poses)
     return run_chunk(group.state, frames, valid, group.config, intrinsics, poses)

@@ -88,7 +88,7 @@ def _motion(state: SlamState, config: SlamConfig) -> jax.Array:
                      0.0)
 
 
-def _predicted_pose(state: SlamState) -> jax.Array:
+def predicted_pose(state: SlamState) -> jax.Array:
     """The constant-velocity prediction of the next pose (the last pose before frame 2)."""
     return jnp.where(state.frame >= 2, constant_velocity(state.w2c_prev2, state.w2c_prev1), state.w2c_prev1)
 
@@ -98,7 +98,7 @@ def tracking_problem(state: SlamState, color: jax.Array, depth: jax.Array, confi
     """The tracking problem of the frame after ``state`` (its colour [H, W, 3] and depth [H, W]), as :func:`step`
     poses it: the map, the constant-velocity prediction, CB-KNN's motion from the last two poses, and the smooth flag
     (``paper`` mode and a keyframe; the first frame with depth always is one)."""
-    return TrackingProblem(state.gaussians, color, depth, _predicted_pose(state), intrinsics,
+    return TrackingProblem(state.gaussians, color, depth, predicted_pose(state), intrinsics,
                            jnp.asarray(config.cbknn.smooth_renders) & _is_keyframe(state, config),
                            _motion(state, config))
 
@@ -132,7 +132,7 @@ def _no_outputs() -> StepOutputs:
 
 def _coast(state: SlamState, frame: Frame, config: SlamConfig, pose) -> tuple[SlamState, StepOutputs]:
     """A frame without usable depth: the predicted (or known) pose, the map and keyframes untouched."""
-    w2c = orthonormalize(_predicted_pose(state) if pose is None else pose)
+    w2c = orthonormalize(predicted_pose(state) if pose is None else pose)
     zero = jnp.float32(0.0)
     outputs = StepOutputs(w2c=w2c, tracking_loss=zero, mapping_loss=zero, num_gaussians=state.gaussians.num_active(),
                           added=jnp.int32(0), dropped=jnp.int32(0), keyframe=jnp.bool_(False),
