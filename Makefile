@@ -37,9 +37,10 @@ TEST_WORKERS ?= 2
 test: install chromium lint
 	$(BIN)/python -m pytest -q -m "not slow" $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile) tests
 
-# ruff (configured in pyproject.toml); `make test` runs it first.
+# ruff and mypy (both configured in pyproject.toml; mypy on the core and the evaluation); `make test` runs them first.
 lint: install
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 
 test-slow: install
 	$(BIN)/python -m pytest -q -m slow tests

@@ -78,7 +78,7 @@ class TileLists(NamedTuple):
     """
 
     ids: jax.Array
-    count: jax.Array
+    count: jax.Array  # type: ignore[assignment]  # shadows tuple.count: the name is public
     intersections: jax.Array
     intersections_dropped: jax.Array
 
@@ -111,7 +111,8 @@ def _sort_pairs(tile: jax.Array, rank: jax.Array, num_tiles: int, n: int) -> tup
         dtype = jnp.int32 if span <= 2**31 - 1 else jnp.uint32
         packed = jax.lax.sort(tile.astype(dtype) * dtype(n) + rank.astype(dtype))
         return (packed // dtype(n)).astype(jnp.int32), (packed % dtype(n)).astype(jnp.int32)
-    return jax.lax.sort((tile, rank), num_keys=2)
+    tile_sorted, rank_sorted = jax.lax.sort((tile, rank), num_keys=2)
+    return tile_sorted, rank_sorted
 
 
 def bin_gaussians(

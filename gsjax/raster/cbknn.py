@@ -246,6 +246,7 @@ def _correct(slots: Slots, pixels, alpha, mask, cbknn: CBKNN):
     centroid_u = _safe_divide(jnp.sum(m * slots.u, axis=0), count)  # [P]
     centroid_v = _safe_divide(jnp.sum(m * slots.v, axis=0), count)
     offset_u, offset_v = centroid_u[None] - slots.u, centroid_v[None] - slots.v
+    scale: jax.Array | float
     if cbknn.shift_mode == "unit":
         # The direction carries no gradient: its Jacobian is singular (~1/eps) where a centre sits on C_p.
         offset_u, offset_v = jax.lax.stop_gradient(offset_u), jax.lax.stop_gradient(offset_v)
@@ -261,7 +262,7 @@ def _correct(slots: Slots, pixels, alpha, mask, cbknn: CBKNN):
     else:
         shifted_alpha = alpha
         shift_px = jnp.zeros_like(alpha)
-    colours = (slots.r, slots.g, slots.b)
+    colours: tuple[jax.Array, ...] = (slots.r, slots.g, slots.b)
     if cbknn.colour:
         consensus_weights = _safe_divide(m * alpha, jnp.sum(m * alpha, axis=0, keepdims=True))
         colours = tuple(jnp.where(mask, jnp.sum(consensus_weights * c, axis=0, keepdims=True), c) for c in colours)

@@ -94,7 +94,8 @@ def gather(table: Slots, ids: jax.Array) -> Slots:
     # Empty slots read past the end (filled with 0), so the backward pass drops them: clamped to Gaussian 0, half of
     # all slots would add into that one entry, and on XLA:CPU such a hot index makes each scatter-add ~5x slower.
     index = jnp.where(ids >= 0, ids, table.u.shape[0])
-    return Slots(*(jnp.take(column, index, mode="fill", fill_value=0) for column in table[:-1]), valid=ids >= 0)
+    columns = [jnp.take(column, index, mode="fill", fill_value=0) for column in table[:-1]]
+    return Slots(*columns, valid=ids >= 0)  # type: ignore[misc]  # mypy cannot count a list's items
 
 
 def slot_alpha(slots: Slots, pixels: jax.Array, u: jax.Array | None = None, v: jax.Array | None = None) -> jax.Array:

@@ -395,6 +395,7 @@ def _render(
         )
         cbknn_stats = None
         if cbknn is not None:
+            assert k_pixel is not None  # set with cbknn above
             cbknn_stats = cb.CBKNNStats(
                 k_map=k_map,
                 rho_map=rho,

@@ -187,7 +187,8 @@ def select_contributors(
     pad = -ids.shape[1] % _WORD
     ids = jnp.pad(ids, ((0, 0), (0, pad)), constant_values=-1)
     features = jnp.where((ids >= 0)[..., None], table[jnp.maximum(ids, 0)], 0.0)  # [B, M, 6]
-    args = (features, ids, tiles.count, grid.pixel_coords(), tiles.incomplete())
+    args: tuple[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array] = (
+        features, ids, tiles.count, grid.pixel_coords(), tiles.incomplete())
     # Bound memory on large images: at most tiles_per_batch tiles at a time, in equal batches (least padding).
     num_batches = -(-grid.num_tiles // tiles_per_batch)
     batch = -(-grid.num_tiles // num_batches)
@@ -199,7 +200,7 @@ def select_contributors(
         fill = num_batches * batch - grid.num_tiles
         padded = jax.tree_util.tree_map(lambda x: jnp.pad(x, [(0, fill)] + [(0, 0)] * (x.ndim - 1)), args)
         batched = jax.tree_util.tree_map(lambda x: x.reshape((num_batches, batch) + x.shape[1:]), padded)
-        selected, *per_pixel = jax.lax.map(lambda a: _walk(*a, k=k), batched)
+        selected, *per_pixel = jax.lax.map(lambda a: _walk(*a, k=k), batched)  # type: ignore[misc]  # a: 5 arrays
         selected = jnp.moveaxis(selected, 0, 1).reshape((k, -1) + selected.shape[3:])[:, : grid.num_tiles]
         per_pixel = [x.reshape((-1,) + x.shape[2:])[: grid.num_tiles] for x in per_pixel]
     num_pixels = grid.num_tiles * grid.pixels_per_tile

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator, Sequence
-from typing import TYPE_CHECKING, NamedTuple, TypeVar
+from typing import TYPE_CHECKING, NamedTuple, TypeVar, cast
 
 import jax
 import jax.numpy as jnp
@@ -49,7 +49,7 @@ class Chunk(NamedTuple):
     """
 
     start: int
-    count: int
+    count: int  # type: ignore[assignment]  # shadows tuple.count: the name is public
     frames: list
     state: SlamState
     outputs: StepOutputs
@@ -121,7 +121,7 @@ class BatchChunk(NamedTuple):
     or [V, count, ...] for a stacked group) per group."""
 
     start: int
-    count: int
+    count: int  # type: ignore[assignment]  # shadows tuple.count: the name is public
     frames: list
     states: list
     outputs: list
@@ -174,6 +174,7 @@ def batch_chunk_loop(
     done = start
     upcoming = read(done) if done < total else None
     while done < total:
+        assert upcoming is not None  # read while done < total
         host, read_s = upcoming
         count = len(host)
         t0 = time.perf_counter()
@@ -265,8 +266,10 @@ def run(
       chunk: frames per jitted scan; capacity: initial map capacity (default 2 H W, grown as needed).
       call: how each chunk's ``run_chunk`` is called (:func:`batch_chunk_loop`; None: directly).
     """
+    read: Callable[[int], Frame]
     if hasattr(frames, "read_host"):
-        read, total = frames.read_host, len(frames)
+        sequence = cast("FrameSequence", frames)
+        read, total = sequence.read_host, len(sequence)
     else:
         items = _frame_list(frames)
         read, total = items.__getitem__, len(items)
@@ -282,7 +285,7 @@ def run(
         parts.append(done.outputs)
         chunk_state = done.state
     outputs = concat_outputs(parts)
-    return RunResult(outputs.w2c, outputs, chunk_state)
+    return RunResult(np.asarray(outputs.w2c), outputs, chunk_state)
 
 
 # ------------------------------------------------------------------------------------------- batches
@@ -293,7 +296,7 @@ def stack_trees(trees: list[_Tree]) -> _Tree:
     axis; raises ValueError when their static fields differ."""
     structure = jax.tree_util.tree_structure(trees[0])
     for tree in trees[1:]:
-        if jax.tree_util.tree_structure(tree) != structure:
+        if jax.tree_util.tree_structure(tree) != structure:  # type: ignore[operator]  # PyTreeDef defines !=
             raise ValueError("stack_trees: the trees differ in structure or static fields")
     return jax.tree_util.tree_map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
 

@@ -19,7 +19,7 @@ class Window(NamedTuple):
     for the current frame) and ``valid`` [W] bool. Layout: randomly chosen overlapping keyframes, then the most
     recent keyframe, then the current frame (always valid)."""
 
-    index: jax.Array
+    index: jax.Array  # type: ignore[assignment]  # shadows tuple.index: the name is public
     valid: jax.Array
 
 

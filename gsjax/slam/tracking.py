@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -229,7 +229,7 @@ def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided
     import optimistix as optx  # 0.3 s to import (equinox, lineax): only the LM tracker needs it
 
     cfg = config.tracking
-    solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)
+    solver: Any = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)  # generic over types optimistix leaves open
 
     def solve(problem, start, steps, blur_px):
         view_at, color, depth = problem
