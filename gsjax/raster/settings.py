@@ -1,0 +1,103 @@
+"""``RasterSettings``: the rasterizer's settings (tile size and capacities, contributor slots, batching, near plane,
+dilation, backend); shape parameters static, the rest traced."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import numpy as np
+
+from gsjax.checks import is_checkable
+from gsjax.raster import pallas
+from gsjax.raster.binning import TileGrid
+from gsjax.raster.project import DILATION
+
+BACKENDS = ("auto", "xla", "pallas")
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class RasterSettings:
+    """Rasterizer settings. Shape parameters are static; ``near`` is a traced value.
+
+    Attributes:
+      tile_size: tile side (px).
+      tile_capacity: M, depth-sorted candidates kept per tile.
+      max_contributors: K, contributor slots per pixel (the first K along the front-to-back walk).
+      intersections_per_gaussian, intersections_per_pixel: size the static buffer of (tile, Gaussian) pairs,
+        ``L = max(min(ceil(a N), ceil(b H W)), min(N, tile_capacity) * num_tiles)`` for N slots: a few per Gaussian,
+        bounded by a few per pixel when the map holds many more Gaussians than are in view (a SLAM map's capacity),
+        and never less than every tile's full list when N is small. Pairs beyond L (the farthest) are counted
+        in the stats.
+      tiles_per_batch: at most this many tiles are processed together in the XLA selection pass (bounds its
+        memory; the tiles are split into equal batches).
+      near: near-plane distance (m); Gaussians with camera z <= near are culled.
+      slots_per_batch: at most this many per-pixel slots (K x pixels) are composited together; larger images are
+        composited in equal batches of tiles, each recomputed in the backward pass, so the slot arrays' memory is
+        bounded whatever the image size (at the cost of a second forward of the compositing).
+      backend: ``"xla"`` (the reference), ``"pallas"`` (Pallas kernels for the selection walk and the compositing;
+        compiled on a GPU, interpreted elsewhere, which is slow and meant for tests) or ``"auto"`` (pallas on a
+        GPU, xla elsewhere). Same outputs either way; the pallas path has no forward mode (see
+        :meth:`for_forward_mode`), and compiled for a GPU it needs a power-of-two tile area (8x8, 16x16).
+      pose_only: the map is held fixed: no gradient reaches the Gaussians, only ``w2c`` (tracking). The slots are
+        then projected from the Gaussians' raw parameters per slot (:func:`gsjax.raster.composite.splat_slots`)
+        instead of gathered from a per-Gaussian projection, so the backward pass needs no scatter-add into the N
+        Gaussians. The same render either way.
+      dilation: px^2 added to every 2D covariance (3DGS's low-pass filter, 0.3), traced. Rendering every other
+        pixel of an image exactly (a strided grid: focal lengths and principal point halved, see
+        :func:`gsjax.camera.Intrinsics.strided`) takes a quarter of it.
+
+    The defaults render dense SplaTAM-like maps without truncation (measured in ``experiments/raster_defaults.py``);
+    whatever the settings, truncation is reported in ``Render.stats``.
+    """
+
+    tile_size: int = dataclasses.field(default=8, metadata=dict(static=True))
+    tile_capacity: int = dataclasses.field(default=512, metadata=dict(static=True))
+    max_contributors: int = dataclasses.field(default=64, metadata=dict(static=True))
+    intersections_per_gaussian: float = dataclasses.field(default=4.0, metadata=dict(static=True))
+    intersections_per_pixel: float = dataclasses.field(default=16.0, metadata=dict(static=True))
+    tiles_per_batch: int = dataclasses.field(default=512, metadata=dict(static=True))
+    near: float = 0.2
+    slots_per_batch: int = dataclasses.field(default=1 << 25, metadata=dict(static=True))
+    backend: str = dataclasses.field(default="auto", metadata=dict(static=True))
+    pose_only: bool = dataclasses.field(default=False, metadata=dict(static=True))
+    dilation: float = DILATION
+
+    def __post_init__(self):
+        if self.backend not in BACKENDS:
+            raise ValueError(f"RasterSettings.backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
+        for name in ("tile_size", "tile_capacity", "max_contributors", "tiles_per_batch", "slots_per_batch"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"RasterSettings.{name} must be a positive int, got {value!r}")
+        for name in ("intersections_per_gaussian", "intersections_per_pixel"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0):
+                raise ValueError(f"RasterSettings.{name} must be a positive number, got {value!r}")
+        if is_checkable(self.near) and not (
+            np.isfinite(np.asarray(self.near)).all() and np.all(np.asarray(self.near) > 0)
+        ):
+            raise ValueError(f"RasterSettings.near must be a positive finite number (m), got {self.near!r}")
+        if is_checkable(self.dilation) and not (
+            np.isfinite(np.asarray(self.dilation)).all() and np.all(np.asarray(self.dilation) >= 0)
+        ):
+            raise ValueError(f"RasterSettings.dilation must be a finite number >= 0 (px^2), got {self.dilation!r}")
+
+    @property
+    def uses_pallas(self) -> bool:
+        """Whether renders run the Pallas kernels (``"pallas"``, or ``"auto"`` on a GPU)."""
+        return self.backend == "pallas" or (self.backend == "auto" and pallas.on_gpu())
+
+    def for_forward_mode(self) -> "RasterSettings":
+        """These settings on the XLA path when they would use Pallas: ``jax.jvp``/``jax.jacfwd`` need it (the
+        Pallas compositing is a ``custom_vjp``). The two paths give the same renders."""
+        return dataclasses.replace(self, backend="xla") if self.uses_pallas else self
+
+    def intersection_capacity(self, num_gaussians: int, grid: TileGrid) -> int:
+        """The static number L of (tile, Gaussian) pairs binned for a map of ``num_gaussians`` slots."""
+        per_gaussian = math.ceil(self.intersections_per_gaussian * num_gaussians)
+        per_pixel = math.ceil(self.intersections_per_pixel * grid.width * grid.height)
+        full_lists = min(num_gaussians, self.tile_capacity) * grid.num_tiles
+        return max(min(per_gaussian, per_pixel), full_lists)
