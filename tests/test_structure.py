@@ -1,0 +1,63 @@
+"""The package's shape: no import cycle between gsjax's modules, the core never imports the shell, no module over
+400 lines (issue 38). Module-level imports only (a function may import lazily what it alone needs)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1] / "gsjax"
+CORE = ("gsjax.raster", "gsjax.slam", "gsjax.camera", "gsjax.gaussians")
+
+
+def modules() -> dict[str, Path]:
+    found = {}
+    for path in ROOT.rglob("*.py"):
+        parts = path.relative_to(ROOT.parent).with_suffix("").parts
+        found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def imports(path: Path, known: dict[str, Path]) -> set[str]:
+    """The gsjax modules ``path`` imports at module level (outside ``if TYPE_CHECKING:``)."""
+    names = set()
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("gsjax"):
+            names |= {f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in known else node.module
+                      for a in node.names}
+        elif isinstance(node, ast.Import):
+            names |= {a.name for a in node.names if a.name.startswith("gsjax")}
+    return {name for name in names if name in known}
+
+
+def test_no_module_level_import_cycle():
+    known = modules()
+    graph = {name: imports(path, known) - {name} for name, path in known.items()}
+    state: dict[str, int] = {}
+
+    def visit(name: str, trail: list[str]) -> None:
+        state[name] = 1
+        for dep in sorted(graph[name]):
+            assert state.get(dep) != 1, "import cycle: " + " -> ".join(trail[trail.index(dep):] + [name, dep]) \
+                if dep in trail else f"import cycle through {name} -> {dep}"
+            if dep not in state:
+                visit(dep, trail + [name])
+        state[name] = 2
+
+    for name in sorted(graph):
+        if name not in state:
+            visit(name, [])
+    assert len(graph) > 50  # the walk saw the package
+
+
+def test_the_core_never_imports_the_shell():
+    known = modules()
+    for name, path in known.items():
+        if name.startswith(CORE):
+            shell = sorted(dep for dep in imports(path, known) if dep.startswith("gsjax.app"))
+            assert not shell, f"{name} imports {shell}"
+
+
+def test_no_module_is_over_400_lines():
+    long = {name: n for name, path in modules().items() if (n := len(path.read_text().splitlines())) > 400}
+    assert not long, long
