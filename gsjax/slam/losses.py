@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, NamedTuple
+
 import jax
 import jax.numpy as jnp
 
 from gsjax.eval.image import ssim_splatam
 from gsjax.slam.views import RenderedView
+
+if TYPE_CHECKING:
+    from gsjax.slam.config import TrackingConfig
 
 
 def tracking_mask(view: RenderedView, depth_gt: jax.Array, sil_threshold: float | jax.Array) -> jax.Array:
@@ -53,50 +58,70 @@ def gaussian_blur(image: jax.Array, sigma_px: float | jax.Array, radius: int) ->
     return along(along(image, 0), 1)
 
 
-def tracking_loss(
-    view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
-    lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False,
-    match_exposure: bool | jax.Array = False, blur_px: float | jax.Array = 0.0, blur_radius: int = 0,
-) -> jax.Array:
+class TrackingTerms(NamedTuple):
+    """How the tracking loss weighs and filters its terms (:func:`tracking_loss`, :func:`tracking_residuals`).
+
+    Attributes:
+      lambda_color, lambda_depth: the weights of the colour and depth terms (traced).
+      sil_threshold: the silhouette above which a pixel with valid depth counts (:func:`tracking_mask`, traced).
+      normalized_depth: compare depth / silhouette (:func:`rendered_depth`; a Python bool).
+      match_exposure: scale the render's colour by :func:`exposure_gain` first (bool, may be traced).
+      blur_px: std (px) of the Gaussian that filters the masked residuals (traced); blur_radius: its truncation (px,
+        a Python int; 0: no filter).
+    """
+
+    lambda_color: float | jax.Array
+    lambda_depth: float | jax.Array
+    sil_threshold: float | jax.Array
+    normalized_depth: bool = False
+    match_exposure: bool | jax.Array = False
+    blur_px: float | jax.Array = 0.0
+    blur_radius: int = 0
+
+    @classmethod
+    def of(cls, tracking: TrackingConfig, lambda_color: float | jax.Array | None = None,
+           blur_px: float | jax.Array | None = None) -> TrackingTerms:
+        """The terms ``tracking`` sets; ``lambda_color`` (a keyframe's) and ``blur_px`` (a coarse level's) replace
+        its own when given."""
+        return cls(tracking.lambda_color if lambda_color is None else lambda_color, tracking.lambda_depth,
+                   tracking.sil_threshold, tracking.normalized_depth, tracking.match_exposure,
+                   tracking.blur_px if blur_px is None else blur_px, tracking.blur_radius_px)
+
+
+def tracking_loss(view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, terms: TrackingTerms) -> jax.Array:
     """SplaTAM's tracking loss: lambda_depth sum_M |D - D_gt| + lambda_color sum_M |C - C_gt| (sums, not means);
     with ``match_exposure`` the render's colour is first scaled by :func:`exposure_gain`. With ``blur_radius`` > 0
     the masked residuals are first filtered by :func:`gaussian_blur` (``blur_px``): render and frame blurred
     together."""
-    if blur_radius:
-        depth, color = _masked_residuals(view, color_gt, depth_gt, sil_threshold, normalized_depth, match_exposure,
-                                         blur_px, blur_radius)
-        return lambda_depth * jnp.sum(jnp.abs(depth)) + lambda_color * jnp.sum(jnp.abs(color))
-    mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
-    depth = rendered_depth(view, normalized_depth)
-    color = _compared_color(view, color_gt, mask, match_exposure)
+    if terms.blur_radius:
+        depth, color = _masked_residuals(view, color_gt, depth_gt, terms)
+        return terms.lambda_depth * jnp.sum(jnp.abs(depth)) + terms.lambda_color * jnp.sum(jnp.abs(color))
+    mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, terms.sil_threshold))
+    depth = rendered_depth(view, terms.normalized_depth)
+    color = _compared_color(view, color_gt, mask, terms.match_exposure)
     depth_term = jnp.sum(jnp.where(mask, jnp.abs(depth - depth_gt), 0.0))
     color_term = jnp.sum(jnp.where(mask[..., None], jnp.abs(color - color_gt), 0.0))
-    return lambda_depth * depth_term + lambda_color * color_term
+    return terms.lambda_depth * depth_term + terms.lambda_color * color_term
 
 
-def tracking_residuals(
-    view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, lambda_color: float | jax.Array,
-    lambda_depth: float | jax.Array, sil_threshold: float | jax.Array, normalized_depth: bool = False,
-    match_exposure: bool | jax.Array = False, blur_px: float | jax.Array = 0.0, blur_radius: int = 0,
-) -> jax.Array:
+def tracking_residuals(view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array,
+                       terms: TrackingTerms) -> jax.Array:
     """The same masked terms as a residual vector [H*W*4] for least squares (Gauss-Newton / LM), blurred as
     :func:`tracking_loss` blurs them."""
-    depth, color = _masked_residuals(view, color_gt, depth_gt, sil_threshold, normalized_depth, match_exposure,
-                                     blur_px, blur_radius)
-    depth, color = depth * jnp.sqrt(lambda_depth), color * jnp.sqrt(lambda_color)
+    depth, color = _masked_residuals(view, color_gt, depth_gt, terms)
+    depth, color = depth * jnp.sqrt(terms.lambda_depth), color * jnp.sqrt(terms.lambda_color)
     return jnp.concatenate([depth.reshape(-1), color.reshape(-1)])
 
 
-def _masked_residuals(view, color_gt, depth_gt, sil_threshold, normalized_depth, match_exposure, blur_px,
-                      blur_radius) -> tuple[jax.Array, jax.Array]:
+def _masked_residuals(view, color_gt, depth_gt, terms: TrackingTerms) -> tuple[jax.Array, jax.Array]:
     """(depth [H, W], colour [H, W, 3]) render - frame, zero outside :func:`tracking_mask`, then filtered by
     :func:`gaussian_blur` when ``blur_radius`` > 0."""
-    mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, sil_threshold))
-    depth = jnp.where(mask, rendered_depth(view, normalized_depth) - depth_gt, 0.0)
-    color = jnp.where(mask[..., None], _compared_color(view, color_gt, mask, match_exposure) - color_gt, 0.0)
-    if blur_radius:
-        depth = gaussian_blur(depth[..., None], blur_px, blur_radius)[..., 0]
-        color = gaussian_blur(color, blur_px, blur_radius)
+    mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, terms.sil_threshold))
+    depth = jnp.where(mask, rendered_depth(view, terms.normalized_depth) - depth_gt, 0.0)
+    color = jnp.where(mask[..., None], _compared_color(view, color_gt, mask, terms.match_exposure) - color_gt, 0.0)
+    if terms.blur_radius:
+        depth = gaussian_blur(depth[..., None], terms.blur_px, terms.blur_radius)[..., 0]
+        color = gaussian_blur(color, terms.blur_px, terms.blur_radius)
     return depth, color
 
 

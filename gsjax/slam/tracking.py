@@ -33,7 +33,7 @@ from gsjax.camera import Intrinsics, camera_center, rotation_angle, se3_exp
 from gsjax.gaussians import Gaussians
 from gsjax.raster import select_slots
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.losses import tracking_loss, tracking_residuals
+from gsjax.slam.losses import TrackingTerms, tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
 from gsjax.slam.views import render_view, strided_frame, strided_setup, strided_slots
 
@@ -92,9 +92,7 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
         return render_view(gaussians, se3_exp(delta) @ w2c_init, intrinsics, config, smooth, gamma, selection)
 
     def loss_fn(delta, selection=None):
-        return tracking_loss(view_at(delta, selection), color, depth, lambda_color, cfg.lambda_depth,
-                             cfg.sil_threshold, cfg.normalized_depth, cfg.match_exposure, cfg.blur_px,
-                             cfg.blur_radius_px)
+        return tracking_loss(view_at(delta, selection), color, depth, TrackingTerms.of(cfg, lambda_color))
 
     def select(delta):
         return select_slots(gaussians, se3_exp(delta) @ w2c_init, intrinsics, config.raster)
@@ -235,9 +233,7 @@ def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided
         view_at, color, depth = problem
 
         def residuals(delta, _):
-            return tracking_residuals(view_at(delta), color, depth, lambda_color, cfg.lambda_depth,
-                                      cfg.sil_threshold, cfg.normalized_depth, cfg.match_exposure, blur_px,
-                                      cfg.blur_radius_px)
+            return tracking_residuals(view_at(delta), color, depth, TrackingTerms.of(cfg, lambda_color, blur_px))
 
         return optx.least_squares(residuals, solver, start, max_steps=steps, throw=False)
 

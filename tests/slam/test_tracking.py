@@ -14,7 +14,7 @@ from gsjax.camera import se3_exp, se3_log
 from gsjax.config_text import apply_overrides
 from gsjax.raster import render
 from gsjax.raster.render import empty_selection
-from gsjax.slam.losses import exposure_gain, rendered_depth, tracking_loss, tracking_mask
+from gsjax.slam.losses import TrackingTerms, exposure_gain, rendered_depth, tracking_loss, tracking_mask
 from gsjax.slam.presets import with_cbknn_mode
 from gsjax.slam.tracking import TrackingProblem, _track_adam, track
 from gsjax.slam.views import render_view
@@ -113,8 +113,9 @@ def test_strided_iterations_descend_the_full_loss_and_only_full_ones_pick_the_po
     view = full.view_at(zero)
     on_grid = view._replace(color=view.color[1::2, 1::2], depth=view.depth[1::2, 1::2],
                             silhouette=view.silhouette[1::2, 1::2], depth_sq=view.depth_sq[1::2, 1::2])
-    expected = 4.0 * tracking_loss(on_grid, color_s, depth_s, full.lambda_color, config.tracking.lambda_depth,
-                                   config.tracking.sil_threshold, config.tracking.normalized_depth)
+    terms = TrackingTerms(full.lambda_color, config.tracking.lambda_depth, config.tracking.sil_threshold,
+                          config.tracking.normalized_depth)
+    expected = 4.0 * tracking_loss(on_grid, color_s, depth_s, terms)
     np.testing.assert_allclose(float(objective.loss(zero)), float(expected), rtol=1e-5)
     result = track_jit(TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0), config)
     assert int(result.iterations) == 41
@@ -281,8 +282,8 @@ def test_paper_mode_keyframe_tracking_uses_the_smoothed_render_and_the_keyframe_
     smoothed = render_view(gaussians, w2c_init, tiny_sequence().intrinsics, config, True, 0.3)
 
     def expected(lambda_color):
-        return float(tracking_loss(smoothed, color, depth, lambda_color, tc.lambda_depth, tc.sil_threshold,
-                                   tc.normalized_depth))
+        return float(tracking_loss(smoothed, color, depth, TrackingTerms(lambda_color, tc.lambda_depth,
+                                                                         tc.sil_threshold, tc.normalized_depth)))
 
     assert config.cbknn.lambda_color_keyframe == 0.6 and tc.lambda_color == 0.5
     np.testing.assert_allclose(float(run("paper", True).loss), expected(0.6), rtol=1e-5)
@@ -301,7 +302,7 @@ def test_match_exposure_takes_a_change_of_brightness_for_what_it_is(rendered_sce
     mask = tracking_mask(view, depth, 0.99)
     np.testing.assert_allclose(np.asarray(exposure_gain(view.color, brighter, mask)), np.asarray(gain), rtol=1e-5)
     assert float(exposure_gain(view.color, 9 * color, mask)[0]) == 2.0  # bounded: never a free brightness
-    loss = lambda gt, match: float(tracking_loss(view, gt, depth, 0.5, 1.0, 0.99, False, match))  # noqa: E731
+    loss = lambda gt, match: float(tracking_loss(view, gt, depth, TrackingTerms(0.5, 1.0, 0.99, False, match)))  # noqa: E731
     assert loss(brighter, True) == pytest.approx(loss(color, False), rel=1e-4)  # the depth term only
     assert loss(brighter, False) > loss(color, False) + 100
     config = apply_overrides(tracking_config("lm", 10), {"tracking.match_exposure": "true"})
@@ -363,17 +364,19 @@ def test_the_blurred_tracking_loss_is_the_l1_of_the_blurred_masked_residuals(ren
     cfg = config.tracking
     w2c = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
     view = render_view(gaussians, w2c, tiny_sequence().intrinsics, config, False, 0.0)
-    args = (view, color, depth, 0.5, 1.0, cfg.sil_threshold, cfg.normalized_depth)
-    plain = float(tracking_loss(*args))
-    np.testing.assert_allclose(float(tracking_loss(*args, False, 0.0, 4)), plain, rtol=1e-6)
+    args = (0.5, 1.0, cfg.sil_threshold, cfg.normalized_depth)
+    plain = float(tracking_loss(view, color, depth, TrackingTerms(*args)))
+    np.testing.assert_allclose(float(tracking_loss(view, color, depth, TrackingTerms(*args, False, 0.0, 4))), plain,
+                               rtol=1e-6)
     mask = np.asarray(tracking_mask(view, depth, cfg.sil_threshold))
     depth_residual = np.where(mask, np.asarray(rendered_depth(view, cfg.normalized_depth)) - depth, 0)
     residual = np.concatenate([depth_residual[..., None],
                                np.where(mask[..., None], np.asarray(view.color) - np.asarray(color), 0)], axis=-1)
     smoothed = np.abs(_dense_blur_reference(residual, 1.5, 4))
     expected = smoothed[..., 0].sum() + 0.5 * smoothed[..., 1:].sum()
-    np.testing.assert_allclose(float(tracking_loss(*args, False, 1.5, 4)), expected, rtol=1e-5)
-    assert float(tracking_loss(*args, False, 1.5, 4)) < plain  # opposite residuals cancel once blurred
+    blurred = float(tracking_loss(view, color, depth, TrackingTerms(*args, False, 1.5, 4)))
+    np.testing.assert_allclose(blurred, expected, rtol=1e-5)
+    assert blurred < plain  # opposite residuals cancel once blurred
 
 
 def test_coarse_to_fine_runs_its_levels_first_at_halving_blur_and_keeps_a_full_iteration_s_pose(rendered_scene):
@@ -391,8 +394,9 @@ def test_coarse_to_fine_runs_its_levels_first_at_halving_blur_and_keeps_a_full_i
     view = tracking_objective(problem, config).view_at(zero)
     cfg = config.tracking
     for level, sigma in zip(levels, (2.0, 1.0, 0.5)):
-        expected = tracking_loss(view, color, depth, cfg.lambda_color, cfg.lambda_depth, cfg.sil_threshold,
-                                 cfg.normalized_depth, False, sigma, 4)
+        terms = TrackingTerms(cfg.lambda_color, cfg.lambda_depth, cfg.sil_threshold, cfg.normalized_depth, False,
+                              sigma, 4)
+        expected = tracking_loss(view, color, depth, terms)
         np.testing.assert_allclose(float(level(zero)), float(expected), rtol=1e-6)
     result = track_jit(problem, config)
     assert int(result.iterations) == 31 + 20
