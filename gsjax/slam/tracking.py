@@ -158,6 +158,21 @@ def strided_problem(
     return on_grid
 
 
+class AdamCarry(NamedTuple):
+    """The Adam tracker's loop state: iteration ``it``, the pose update ``delta`` ({rho, phi} [3] each), the
+    optimiser's state, the best finite-loss update and its loss, the iteration and loss of the last progress (for
+    ``converge_window``), and the contributor selection in use (None when every render chooses its own)."""
+
+    it: jax.Array
+    delta: dict
+    opt_state: Any
+    best_delta: dict
+    best_loss: jax.Array
+    progress_at: jax.Array
+    progress_loss: jax.Array
+    selection: Any
+
+
 def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coarse=(), select=None) -> TrackResult:
     """Adam on ``loss_fn`` (delta [6], selection -> []) for ``tracking.iters`` iterations, after
     ``tracking.strided_iters`` on ``strided_loss_fn(delta, phase, selection)`` when given (phase = the iteration
@@ -172,27 +187,27 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
     every = cfg.reselect_every if select is not None else 1
 
-    def iteration(loss_fn, carry):
-        it, delta, opt_state, best_delta, best_loss, progress_at, progress_loss, selection = carry
+    def iteration(loss_fn, carry: AdamCarry) -> AdamCarry:
+        it, delta, selection = carry.it, carry.delta, carry.selection
         if every > 1:
             selection = jax.lax.cond(it % every == 0, lambda: select(tangent(delta)), lambda: selection)
         loss, grad = jax.value_and_grad(lambda d: loss_fn(tangent(d), it, selection))(delta)
-        updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grad), opt_state)
+        updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grad), carry.opt_state)
         new_delta = optax.apply_updates(delta, updates)
-        better = jnp.isfinite(loss) & (loss < best_loss)
+        better = jnp.isfinite(loss) & (loss < carry.best_loss)
         candidate = delta if cfg.best_pose == "pre_step" else new_delta
-        best_delta = jax.tree.map(lambda c, b: jnp.where(better, c, b), candidate, best_delta)
+        best_delta = jax.tree.map(lambda c, b: jnp.where(better, c, b), candidate, carry.best_delta)
         # Progress: the loss fell by converge_rtol below the loss of the last progress (the first finite loss is).
-        progress = jnp.isfinite(loss) & (loss < progress_loss * (1.0 - cfg.converge_rtol))
-        return (it + 1, new_delta, opt_state, best_delta, jnp.where(better, loss, best_loss),
-                jnp.where(progress, it, progress_at), jnp.where(progress, loss, progress_loss), selection)
+        progress = jnp.isfinite(loss) & (loss < carry.progress_loss * (1.0 - cfg.converge_rtol))
+        return AdamCarry(it + 1, new_delta, opt_state, best_delta, jnp.where(better, loss, carry.best_loss),
+                         jnp.where(progress, it, carry.progress_at), jnp.where(progress, loss, carry.progress_loss),
+                         selection)
 
     def scan(loss_fn, init, length):
         return jax.lax.scan(lambda carry, _: (iteration(loss_fn, carry), None), init, None, length=length)[0]
 
-    def restart(final):  # the next stage goes on from this one's pose, optimiser state and selection
-        it, delta, opt_state = final[:3]
-        return (it, delta, opt_state, delta, inf, it, inf, final[7])
+    def restart(final: AdamCarry) -> AdamCarry:  # the next stage goes on from this one's pose, state, selection
+        return final._replace(best_delta=final.delta, best_loss=inf, progress_at=final.it, progress_loss=inf)
 
     def full_loss(delta, it, selection):
         return loss_fn(delta) if selection is None else loss_fn(delta, selection)
@@ -202,23 +217,22 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
     if every > 1:
         # (its trace is the selection's first, which the loop's calls then reuse)
         selection0 = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(select, tangent(delta0)))
-    init = (jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf, selection0)
+    init = AdamCarry(jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf, selection0)
     for level, level_loss in enumerate(coarse):  # coarse_iters split over the levels, the remainder to the first
         count = cfg.coarse_iters // len(coarse) + (cfg.coarse_iters % len(coarse) if level == 0 else 0)
         init = restart(scan(lambda d, it, sel, f=level_loss: f(d) if sel is None else f(d, sel), init, count))
     if strided_loss_fn is not None and cfg.strided_iters:
         init = restart(scan(lambda d, it, sel: strided_loss_fn(d, it % 4, sel), init, cfg.strided_iters))
-    end = init[0] + cfg.iters
+    end = init.it + cfg.iters
     if cfg.converge_window > 0:
-        def running(carry):
-            it, progress_at = carry[0], carry[5]
-            return (it < end) & (it - progress_at <= cfg.converge_window)
+        def running(carry: AdamCarry):
+            return (carry.it < end) & (carry.it - carry.progress_at <= cfg.converge_window)
 
         final = jax.lax.while_loop(running, lambda carry: iteration(full_loss, carry), init)
     else:
         final = scan(full_loss, init, cfg.iters)
-    iterations, _, opt_state, best_delta, best_loss = final[:5]
-    return TrackResult(se3_exp(tangent(best_delta)) @ w2c_init, best_loss, nonfinite_steps(opt_state), iterations)
+    return TrackResult(se3_exp(tangent(final.best_delta)) @ w2c_init, final.best_loss,
+                       nonfinite_steps(final.opt_state), final.it)
 
 
 def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided=None) -> TrackResult:
