@@ -42,7 +42,7 @@ def compiled_peaks(width: int, height: int, backend: str, slots_per_batch: int, 
 
     def map_iteration(fields):
         def loss(fields):
-            view = render_view(Gaussians(*fields, g.active), w2c, intrinsics, config, False, 0.0)
+            view = render_view(Gaussians(*fields, g.active), w2c, intrinsics, config.raster, config.cbknn, False, 0.0)
             return jnp.sum(jnp.abs(view.color - color)) + jnp.sum(jnp.abs(view.depth - depth))
 
         return jax.value_and_grad(loss)(fields)

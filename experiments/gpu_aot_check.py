@@ -333,7 +333,8 @@ def programs():
 
         def map_iteration(params, active, w2c, color, depth, smooth, gamma):
             def loss(params):
-                view = render_view(Gaussians(*params, active), w2c, intrinsics, config, smooth, gamma)
+                view = render_view(Gaussians(*params, active), w2c, intrinsics, config.raster, config.cbknn, smooth,
+                                   gamma)
                 m = config.mapping
                 return mapping_loss(view, color, depth, m.lambda_color, m.lambda_depth, m.ssim_weight)
             return jax.value_and_grad(loss)(params)

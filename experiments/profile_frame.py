@@ -110,7 +110,7 @@ def device_stages(sequence, config, frame_index: int, repeats: int) -> dict:
     w2c = track(g, frame.color, frame.depth, w2c0, config).w2c
 
     def densify_stage(g, c, d, w, cfg):
-        view = render_view(g, w, intrinsics, cfg, False, 0.0)
+        view = render_view(g, w, intrinsics, cfg.raster, cfg.cbknn, False, 0.0)
         return densify(g, view, c, d, w, intrinsics, cfg.densify)
 
     dens = jax.jit(densify_stage)

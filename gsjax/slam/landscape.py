@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.camera import rotation_angle, se3_exp
+from gsjax.camera import perturb_left, rotation_angle, se3_inverse
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.tracking import TrackingProblem, track, tracking_objective
 
@@ -95,7 +95,7 @@ def loss_and_grad(problem: TrackingProblem, config: SlamConfig, direction: jax.A
 def pose_error(w2c: jax.Array, w2c_ref: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Distance of poses ``w2c`` [..., 4, 4] from ``w2c_ref`` [4, 4]: the residual left perturbation's translation
     (cm [...]) and rotation angle (deg [...])."""
-    relative = w2c @ jnp.linalg.inv(w2c_ref)
+    relative = w2c @ se3_inverse(w2c_ref)
     angle = jnp.vectorize(rotation_angle, signature="(3,3)->()")(relative[..., :3, :3])
     return 100.0 * jnp.linalg.norm(relative[..., :3, 3], axis=-1), jnp.degrees(angle)
 
@@ -105,7 +105,7 @@ def tracked_from(problem: TrackingProblem, config: SlamConfig, direction: jax.Ar
     """Run the tracker (its optimiser and iterations) from each perturbed pose; its final distance from the reference
     pose ``problem.w2c_init`` as (translation cm [S], rotation deg [S])."""
     w2c_ref = problem.w2c_init
-    start = lambda offset: se3_exp(direction * offset) @ w2c_ref  # noqa: E731
+    start = lambda offset: perturb_left(direction * offset, w2c_ref)  # noqa: E731
     final = jax.vmap(lambda offset: track(problem._replace(w2c_init=start(offset)), config).w2c)(offsets)
     return pose_error(final, w2c_ref)
 
@@ -129,7 +129,7 @@ def _evaluate(problem: TrackingProblem, config: SlamConfig, tangents: jax.Array,
 
     def one(tangent):
         loss, grad = jax.value_and_grad(objective.loss)(tangent)
-        start = se3_exp(tangent) @ problem.w2c_init
+        start = perturb_left(tangent, problem.w2c_init)
         return loss, grad, track(problem._replace(w2c_init=start), config).w2c
 
     loss, grad, final = map_batched(one, jnp.concatenate([tangents, jnp.zeros((1, 6), tangents.dtype)]), batch)

@@ -92,15 +92,16 @@ def map_window(
     every = cfg.reselect_every
 
     def full_view(g, view_index, smooth, it, selection):
-        view = render_view(g, views.w2c[view_index], intrinsics, config, smooth, views.gamma[view_index], selection)
+        view = render_view(g, views.w2c[view_index], intrinsics, config.raster, config.cbknn, smooth,
+                           views.gamma[view_index], selection)
         return view, views.color[view_index], views.depth[view_index]
 
     def strided_view(g, view_index, smooth, it, selection):
         color, depth, intrinsics_s = strided_frame(views.color[view_index], views.depth[view_index], intrinsics, it % 4)
         if selection is not None:
             selection = strided_slots(selection, config, intrinsics, it % 4)
-        view = render_view(g, views.w2c[view_index], intrinsics_s, strided_config, smooth, views.gamma[view_index],
-                           selection)
+        view = render_view(g, views.w2c[view_index], intrinsics_s, strided_config.raster, strided_config.cbknn,
+                           smooth, views.gamma[view_index], selection)
         return view, color, depth
 
     def loss_fn(params, active, view_index, it, view_at, selection):

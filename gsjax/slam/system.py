@@ -176,7 +176,7 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
 
     with jax.named_scope("densify"):
         smooth_densify = smooth & config.cbknn.densify
-        view = render_view(state.gaussians, w2c, intrinsics, config, smooth_densify, gamma)
+        view = render_view(state.gaussians, w2c, intrinsics, config.raster, config.cbknn, smooth_densify, gamma)
         inserted = densify(state.gaussians, jax.lax.stop_gradient(view), frame.color, frame.depth, w2c, intrinsics,
                            config.densify)
         gaussians = inserted.gaussians

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from gsjax.camera import Intrinsics, camera_center, rotation_angle, se3_exp
+from gsjax.camera import Intrinsics, camera_center, perturb_left, rotation_angle
 from gsjax.gaussians import Gaussians
 from gsjax.raster import select_slots
 from gsjax.slam.config import SlamConfig
@@ -89,13 +89,14 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
     smooth = jnp.asarray(smooth) & config.cbknn.track_keyframes
 
     def view_at(delta, selection=None):
-        return render_view(gaussians, se3_exp(delta) @ w2c_init, intrinsics, config, smooth, gamma, selection)
+        return render_view(gaussians, perturb_left(delta, w2c_init), intrinsics, config.raster, config.cbknn, smooth,
+                           gamma, selection)
 
     def loss_fn(delta, selection=None):
         return tracking_loss(view_at(delta, selection), color, depth, TrackingTerms.of(cfg, lambda_color))
 
     def select(delta):
-        return select_slots(gaussians, se3_exp(delta) @ w2c_init, intrinsics, config.raster)
+        return select_slots(gaussians, perturb_left(delta, w2c_init), intrinsics, config.raster)
 
     return TrackingObjective(view_at, loss_fn, lambda_color, select)
 
@@ -231,7 +232,7 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
         final = jax.lax.while_loop(running, lambda carry: iteration(full_loss, carry), init)
     else:
         final = scan(full_loss, init, cfg.iters)
-    return TrackResult(se3_exp(tangent(final.best_delta)) @ w2c_init, final.best_loss,
+    return TrackResult(perturb_left(tangent(final.best_delta), w2c_init), final.best_loss,
                        nonfinite_steps(final.opt_state), final.it)
 
 
@@ -263,8 +264,8 @@ def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided
     usable = jnp.all(jnp.isfinite(delta)) & jnp.isfinite(end_loss)
     better = usable & (end_loss < start_loss)
     best = jnp.where(better, delta, delta0)
-    return TrackResult(se3_exp(best) @ w2c_init, jnp.where(better, end_loss, start_loss), (~usable).astype(jnp.int32),
-                       strided_steps + jnp.asarray(solution.stats["num_steps"], jnp.int32))
+    return TrackResult(perturb_left(best, w2c_init), jnp.where(better, end_loss, start_loss),
+                       (~usable).astype(jnp.int32), strided_steps + jnp.asarray(solution.stats["num_steps"], jnp.int32))
 
 
 class GuardedTrack(NamedTuple):

@@ -10,9 +10,9 @@ import jax.numpy as jnp
 
 from gsjax.camera import Intrinsics
 from gsjax.gaussians import Gaussians
-from gsjax.raster import SlotSelection, render
+from gsjax.raster import RasterSettings, SlotSelection, render
 from gsjax.raster.render import strided_selection
-from gsjax.slam.config import SlamConfig
+from gsjax.slam.config import CBKNNConfig, SlamConfig
 from gsjax.slam.presets import at_width
 
 
@@ -35,24 +35,24 @@ def _view(out) -> RenderedView:
 
 
 def render_view(
-    gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, config: SlamConfig, smooth: bool | jax.Array,
-    gamma: float | jax.Array, selection: SlotSelection | None = None
+    gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, raster: RasterSettings, cbknn: CBKNNConfig,
+    smooth: bool | jax.Array, gamma: float | jax.Array, selection: SlotSelection | None = None
 ) -> RenderedView:
-    """Render ``gaussians`` at ``w2c``; with CB-KNN's per-pixel smoothing where ``smooth`` (a traced bool) is true.
-    ``selection``: contributor slots chosen at a nearby pose (:func:`gsjax.raster.select_slots`), or None to choose
-    them at ``w2c``.
+    """Render ``gaussians`` at ``w2c`` with the ``raster`` settings; with CB-KNN's per-pixel smoothing (``cbknn``'s
+    parameters, motion ``gamma``) where ``smooth`` (a traced bool) is true. ``selection``: contributor slots chosen
+    at a nearby pose (:func:`gsjax.raster.select_slots`), or None to choose them at ``w2c``.
 
-    When the config never smooths renders (CB-KNN mode other than ``paper``), this is the canonical render and
-    ``smooth`` is ignored, so no second render path is compiled.
+    When ``cbknn`` never smooths renders (a mode other than ``paper``), this is the canonical render and ``smooth``
+    is ignored, so no second render path is compiled.
     """
     def canonical():
-        return _view(render(gaussians, w2c, intrinsics, config.raster, selection=selection))
+        return _view(render(gaussians, w2c, intrinsics, raster, selection=selection))
 
-    if not config.cbknn.smooth_renders:
+    if not cbknn.smooth_renders:
         return canonical()
     return jax.lax.cond(
         smooth,
-        lambda: _view(render(gaussians, w2c, intrinsics, config.raster, cbknn=config.cbknn.params, motion=gamma,
+        lambda: _view(render(gaussians, w2c, intrinsics, raster, cbknn=cbknn.params, motion=gamma,
                              selection=selection)),
         canonical,
     )

@@ -40,7 +40,8 @@ def window_losses(gaussians):
     config, views = map_config(), window_frames()
     m = config.mapping
     return np.array([
-        float(mapping_loss(render_view(gaussians, views.w2c[i], tiny_sequence().intrinsics, config, False, 0.0),
+        float(mapping_loss(render_view(gaussians, views.w2c[i], tiny_sequence().intrinsics, config.raster,
+                                       config.cbknn, False, 0.0),
                            views.color[i], views.depth[i], m.lambda_color, m.lambda_depth, m.ssim_weight))
         for i in range(len(views.valid))
     ])
@@ -147,7 +148,7 @@ def test_densify_fills_a_hole_exactly_where_silhouette_is_low_and_depth_valid(ho
     gaussians, color, depth, w2c = holed_map
     intrinsics = tiny_sequence().intrinsics
     config = map_config()
-    view = render_view(gaussians, w2c, intrinsics, config, False, 0.0)
+    view = render_view(gaussians, w2c, intrinsics, config.raster, config.cbknn, False, 0.0)
     silhouette = np.asarray(view.silhouette)
     expected = (silhouette < config.densify.sil_threshold) & (np.asarray(depth) > 0)
     # The low-silhouette pixels are the inside of the hole (its border pixels still see their neighbours).
@@ -181,7 +182,8 @@ def test_densify_fills_a_hole_exactly_where_silhouette_is_low_and_depth_valid(ho
     np.testing.assert_allclose(np.exp(np.asarray(result.gaussians.log_scales)[new]), z / focal, rtol=1e-5)
     np.testing.assert_allclose(np.asarray(result.gaussians.opacities)[new], config.densify.init_opacity, rtol=1e-6)
     # The hole is filled: the silhouette is back above the threshold wherever the depth is valid.
-    refilled = np.asarray(render_view(result.gaussians, w2c, intrinsics, config, False, 0.0).silhouette)
+    refilled = np.asarray(render_view(result.gaussians, w2c, intrinsics, config.raster, config.cbknn, False,
+                                      0.0).silhouette)
     assert np.all(refilled[np.asarray(depth) > 0] > config.densify.sil_threshold)
 
 
@@ -194,7 +196,7 @@ def test_densify_adds_where_the_map_lies_behind_the_observation(holed_map):
     intrinsics = tiny_sequence().intrinsics
     config = map_config()
     densify_config = dataclasses.replace(config.densify, depth_error_factor=5.0)
-    view = render_view(gaussians, w2c, intrinsics, config, False, 0.0)
+    view = render_view(gaussians, w2c, intrinsics, config.raster, config.cbknn, False, 0.0)
     closer = np.zeros(depth.shape, bool)
     closer[22:26, 2:8] = True  # well covered by the map
     assert np.all(np.asarray(view.silhouette)[closer] > 0.9)

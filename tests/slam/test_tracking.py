@@ -41,7 +41,7 @@ def rendered_scene():
     gaussians = first_frame_map()
     w2c_true = jnp.asarray(relative_gt_w2c()[TRUE_FRAME], jnp.float32)
     config = map_config()
-    view = render_view(gaussians, w2c_true, tiny_sequence().intrinsics, config, False, 0.0)
+    view = render_view(gaussians, w2c_true, tiny_sequence().intrinsics, config.raster, config.cbknn, False, 0.0)
     depth = jnp.where(view.silhouette > 0.5, rendered_depth(view, config.tracking.normalized_depth), 0.0)
     return gaussians, view.color, depth, w2c_true
 
@@ -235,9 +235,9 @@ def test_paper_mode_renders_keyframes_smoothed_and_everything_else_canonically(r
     intrinsics = tiny_sequence().intrinsics
     paper, off = with_cbknn_mode(map_config(), "paper"), map_config()
     canonical = render(gaussians, w2c_true, intrinsics, off.raster)
-    smoothed = render_view(gaussians, w2c_true, intrinsics, paper, True, 0.3)
-    unsmoothed = render_view(gaussians, w2c_true, intrinsics, paper, False, 0.3)
-    ignored = render_view(gaussians, w2c_true, intrinsics, off, True, 0.3)  # off mode never smooths
+    smoothed = render_view(gaussians, w2c_true, intrinsics, paper.raster, paper.cbknn, True, 0.3)
+    unsmoothed = render_view(gaussians, w2c_true, intrinsics, paper.raster, paper.cbknn, False, 0.3)
+    ignored = render_view(gaussians, w2c_true, intrinsics, off.raster, off.cbknn, True, 0.3)  # off mode never smooths
     for view in (unsmoothed, ignored):
         np.testing.assert_array_equal(np.asarray(view.color), np.asarray(canonical.color))
         np.testing.assert_array_equal(np.asarray(view.depth), np.asarray(canonical.depth))
@@ -279,7 +279,7 @@ def test_paper_mode_keyframe_tracking_uses_the_smoothed_render_and_the_keyframe_
     run, w2c_init = one_iteration_tracking
     config = with_cbknn_mode(map_config(), "paper")
     tc = config.tracking
-    smoothed = render_view(gaussians, w2c_init, tiny_sequence().intrinsics, config, True, 0.3)
+    smoothed = render_view(gaussians, w2c_init, tiny_sequence().intrinsics, config.raster, config.cbknn, True, 0.3)
 
     def expected(lambda_color):
         return float(tracking_loss(smoothed, color, depth, TrackingTerms(lambda_color, tc.lambda_depth,
@@ -298,7 +298,8 @@ def test_match_exposure_takes_a_change_of_brightness_for_what_it_is(rendered_sce
     gaussians, color, depth, w2c_true = rendered_scene
     gain = jnp.asarray([1.3, 1.2, 1.2], jnp.float32)
     brighter = color * gain
-    view = render_view(gaussians, w2c_true, tiny_sequence().intrinsics, map_config(), False, 0.0)
+    config = map_config()
+    view = render_view(gaussians, w2c_true, tiny_sequence().intrinsics, config.raster, config.cbknn, False, 0.0)
     mask = tracking_mask(view, depth, 0.99)
     np.testing.assert_allclose(np.asarray(exposure_gain(view.color, brighter, mask)), np.asarray(gain), rtol=1e-5)
     assert float(exposure_gain(view.color, 9 * color, mask)[0]) == 2.0  # bounded: never a free brightness
@@ -363,7 +364,7 @@ def test_the_blurred_tracking_loss_is_the_l1_of_the_blurred_masked_residuals(ren
     config = map_config()
     cfg = config.tracking
     w2c = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
-    view = render_view(gaussians, w2c, tiny_sequence().intrinsics, config, False, 0.0)
+    view = render_view(gaussians, w2c, tiny_sequence().intrinsics, config.raster, config.cbknn, False, 0.0)
     args = (0.5, 1.0, cfg.sil_threshold, cfg.normalized_depth)
     plain = float(tracking_loss(view, color, depth, TrackingTerms(*args)))
     np.testing.assert_allclose(float(tracking_loss(view, color, depth, TrackingTerms(*args, False, 0.0, 4))), plain,
