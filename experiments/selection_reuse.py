@@ -44,7 +44,7 @@ def measure(sequence, config, frame_index: int) -> list[dict]:
     fresh = jax.jit(jax.value_and_grad(objective.loss))
     reused = jax.jit(jax.value_and_grad(objective.loss))  # (delta, selection)
     select = jax.jit(objective.select)
-    optimizer = pose_optimizer(config)  # per-component steps: the tracker's {"rho", "phi"} tangent
+    optimizer = pose_optimizer(config.tracking)  # per-component steps: the tracker's {"rho", "phi"} tangent
     delta = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
     opt_state = optimizer.init(delta)
     tangent = lambda d: jnp.concatenate([d["rho"], d["phi"]])  # noqa: E731

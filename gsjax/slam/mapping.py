@@ -82,7 +82,7 @@ def map_window(
     step ``lr_means_first``. With ``mapping.reselect_every`` R > 1 the contributor slots of every window view are
     chosen at iterations 0, R, 2R, ... and composited in between."""
     cfg = config.mapping
-    optimizer = map_optimizer(config, jnp.where(first_map, cfg.lr_means_first, cfg.lr_means))
+    optimizer = map_optimizer(config.mapping, jnp.where(first_map, cfg.lr_means_first, cfg.lr_means))
     params = {name: getattr(gaussians, name) for name in MAP_PARAMS}
     smooth_stage = config.cbknn.smooth_renders and config.cbknn.map_keyframes
     total = cfg.strided_iters + cfg.iters

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from gsjax.slam.config import SlamConfig
+from gsjax.slam.config import MappingConfig, TrackingConfig
 
 _Grads = TypeVar("_Grads")
 
@@ -27,11 +27,12 @@ def nonfinite_steps(opt_state: optax.OptState) -> jax.Array:
     return optax.tree_utils.tree_get(opt_state, "total_notfinite")
 
 
-def pose_optimizer(config: SlamConfig) -> optax.GradientTransformation:
+def pose_optimizer(tracking: TrackingConfig) -> optax.GradientTransformation:
     """SplaTAM's per-frame Adam on the pose tangent ``{"rho": [3], "phi": [3]}``: step ``lr_trans`` on rho and
     ``lr_rot`` on phi, each decaying exponentially to ``lr_final_ratio`` of itself over the iterations; an update
-    whose gradient is not finite is skipped and counted (``total_notfinite`` in the state)."""
-    cfg = config.tracking
+    whose gradient is not finite is skipped and counted (``total_notfinite`` in the state). ``tracking``: the
+    iteration counts and step sizes."""
+    cfg = tracking
     total = cfg.coarse_iters + cfg.strided_iters + cfg.iters  # one Adam over every iteration of the frame
 
     def adam(lr):
@@ -42,12 +43,12 @@ def pose_optimizer(config: SlamConfig) -> optax.GradientTransformation:
     return optax.apply_if_finite(groups, max_consecutive_errors=total)  # never gives up within a frame
 
 
-def map_optimizer(config: SlamConfig, lr_means: float | jax.Array) -> optax.GradientTransformation:
+def map_optimizer(mapping: MappingConfig, lr_means: float | jax.Array) -> optax.GradientTransformation:
     """SplaTAM's per-frame Adam (eps 1e-15) on the map parameters ``{name: array}`` with a step size per group
     (``lr_means`` for the means, traced; ``mapping.lr_rgb``, ``lr_opacity``, ``lr_scale``); an update whose gradient
     is not finite is skipped and counted (``total_notfinite``); with ``skip_step_at_prune`` the iterations in
-    ``prune_iters`` take no step (SplaTAM's quirk)."""
-    cfg = config.mapping
+    ``prune_iters`` take no step (SplaTAM's quirk). ``mapping``: the iteration counts and step sizes."""
+    cfg = mapping
     rates = dict(means=lr_means, rgb=cfg.lr_rgb, logit_opacities=cfg.lr_opacity, log_scales=cfg.lr_scale)
     groups = {name: optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15), optax.scale_by_learning_rate(lr))
               for name, lr in rates.items()}

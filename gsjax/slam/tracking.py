@@ -32,7 +32,7 @@ import optax
 from gsjax.camera import Intrinsics, camera_center, perturb_left, rotation_angle
 from gsjax.gaussians import Gaussians
 from gsjax.raster import select_slots
-from gsjax.slam.config import SlamConfig
+from gsjax.slam.config import SlamConfig, TrackingConfig
 from gsjax.slam.losses import TrackingTerms, tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
 from gsjax.slam.views import render_view, strided_frame, strided_setup, strided_slots
@@ -183,7 +183,7 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
     at iterations 0, R, 2R, ... and the iterations in between composite those (the selection is None with R = 1:
     every render chooses its own)."""
     cfg = config.tracking
-    optimizer = pose_optimizer(config)
+    optimizer = pose_optimizer(config.tracking)
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
     every = cfg.reselect_every if select is not None else 1
@@ -281,10 +281,10 @@ class GuardedTrack(NamedTuple):
     iterations: jax.Array
 
 
-def within_step_bound(w2c: jax.Array, w2c_init: jax.Array, config: SlamConfig) -> jax.Array:
+def within_step_bound(w2c: jax.Array, w2c_init: jax.Array, tracking: TrackingConfig) -> jax.Array:
     """[] bool: ``w2c`` lies within the physical bound of one frame's motion from ``w2c_init`` (camera centre
-    ``max_step_m``, rotation ``max_step_deg``)."""
-    cfg = config.tracking
+    ``tracking.max_step_m``, rotation ``tracking.max_step_deg``)."""
+    cfg = tracking
     shift = jnp.linalg.norm(camera_center(w2c) - camera_center(w2c_init))
     turn = rotation_angle(w2c[:3, :3] @ w2c_init[:3, :3].T)
     return jnp.all(jnp.isfinite(w2c)) & (shift <= cfg.max_step_m) & (turn <= jnp.deg2rad(cfg.max_step_deg))
@@ -293,7 +293,7 @@ def within_step_bound(w2c: jax.Array, w2c_init: jax.Array, config: SlamConfig) -
 def _diverged(result: TrackResult, w2c_init, previous_loss, config: SlamConfig) -> jax.Array:
     # A non-finite loss (every iteration skipped) already keeps the start pose; a retry cannot mend the map.
     jump = (previous_loss > 0) & (result.loss > config.tracking.loss_jump * previous_loss)
-    return jnp.isfinite(result.loss) & (jump | ~within_step_bound(result.w2c, w2c_init, config))
+    return jnp.isfinite(result.loss) & (jump | ~within_step_bound(result.w2c, w2c_init, config.tracking))
 
 
 def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: jax.Array) -> GuardedTrack:
@@ -325,8 +325,8 @@ def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: j
     else:
         first = second = track(problem, config)
     retry = _diverged(first, w2c_init, previous_loss, config)
-    ok_first = within_step_bound(first.w2c, w2c_init, config)
-    ok_second = within_step_bound(second.w2c, w2c_init, config)
+    ok_first = within_step_bound(first.w2c, w2c_init, config.tracking)
+    ok_second = within_step_bound(second.w2c, w2c_init, config.tracking)
     use_second = retry & ok_second & (~ok_first | (second.loss < first.loss))
     diverged = retry & ~ok_first & ~ok_second
     w2c = jnp.where(diverged, w2c_init, jnp.where(use_second, second.w2c, first.w2c))

@@ -81,13 +81,13 @@ def test_the_step_bound_measures_camera_centre_and_rotation():
     config = apply_overrides(tiny_config(), {"tracking.max_step_m": "0.1", "tracking.max_step_deg": "10"})
     start = orthonormalize(se3_exp(jnp.asarray([0.3, -0.2, 1.0, 0.1, 0.2, -0.1])))
     moved = lambda delta: se3_exp(jnp.asarray(delta, jnp.float32)) @ start  # noqa: E731
-    assert bool(within_step_bound(start, start, config))
-    assert bool(within_step_bound(moved([0.09, 0, 0, 0, 0, 0]), start, config))
-    assert not bool(within_step_bound(moved([0.11, 0, 0, 0, 0, 0]), start, config))
+    assert bool(within_step_bound(start, start, config.tracking))
+    assert bool(within_step_bound(moved([0.09, 0, 0, 0, 0, 0]), start, config.tracking))
+    assert not bool(within_step_bound(moved([0.11, 0, 0, 0, 0, 0]), start, config.tracking))
     # A left rotation turns the camera about its own centre: the centre stays, the angle decides.
-    assert bool(within_step_bound(moved([0, 0, 0, 0, np.deg2rad(9.5), 0]), start, config))
-    assert not bool(within_step_bound(moved([0, 0, 0, 0, np.deg2rad(10.5), 0]), start, config))
-    assert not bool(within_step_bound(start.at[0, 3].set(jnp.nan), start, config))
+    assert bool(within_step_bound(moved([0, 0, 0, 0, np.deg2rad(9.5), 0]), start, config.tracking))
+    assert not bool(within_step_bound(moved([0, 0, 0, 0, np.deg2rad(10.5), 0]), start, config.tracking))
+    assert not bool(within_step_bound(start.at[0, 3].set(jnp.nan), start, config.tracking))
 
 
 def test_a_pose_beyond_the_bound_is_retried_then_falls_back_to_the_prediction():

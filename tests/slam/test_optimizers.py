@@ -65,7 +65,7 @@ def test_pose_optimizer_is_adam_with_a_step_per_component_and_exponential_decay(
                                              "tracking.lr_final_ratio": str(ratio), "tracking.lr_trans": "0.002",
                                              "tracking.lr_rot": "0.0005"})
     grads = _pose_grads(np.random.default_rng(0), 8, nan_at=(3,))
-    got, skipped = run(pose_optimizer(config), grads)
+    got, skipped = run(pose_optimizer(config.tracking), grads)
     want, want_skipped = reference_adam(grads, {"rho": 2e-3, "phi": 5e-4}, eps=1e-8,
                                         decay=lambda k: ratio ** (k / 7))
     assert skipped == want_skipped == 1
@@ -85,7 +85,7 @@ def test_map_optimizer_steps_each_group_and_skips_prune_iterations_when_asked(sk
     grads = [dict(means=rng.normal(size=(4, 3)), rgb=rng.normal(size=(4, 3)), logit_opacities=rng.normal(size=4),
                   log_scales=rng.normal(size=4)) for _ in range(6)]
     grads[2]["rgb"][0, 0] = np.inf
-    got, skipped = run(map_optimizer(config, jnp.float32(1e-3)), grads)
+    got, skipped = run(map_optimizer(config.mapping, jnp.float32(1e-3)), grads)
     rates = dict(means=1e-3, rgb=cfg.lr_rgb, logit_opacities=cfg.lr_opacity, log_scales=cfg.lr_scale)
     want, want_skipped = reference_adam(grads, rates, eps=1e-15, skip=lambda i: skip_at_prune and i in (0, 4))
     assert skipped == want_skipped == 1
@@ -108,7 +108,7 @@ def test_the_learning_rates_are_traced_so_a_batch_of_configs_is_one_program():
     batch = jax.tree.map(lambda a, b: jnp.stack([jnp.asarray(a), jnp.asarray(b)]), config, doubled)
 
     def first_update(cfg):
-        optimizer = pose_optimizer(cfg)
+        optimizer = pose_optimizer(cfg.tracking)
         delta = {"rho": jnp.zeros(3), "phi": jnp.zeros(3)}
         updates, _ = optimizer.update({"rho": jnp.ones(3), "phi": jnp.ones(3)}, optimizer.init(delta))
         return updates["rho"]
