@@ -61,32 +61,26 @@ def finish_run(sequence: Sequence, config: SlamConfig, options: OutputOptions, s
                resume_warnings: Iterable[str] = (), checkpoints: CheckpointLedger | None = None,
                frames: dict | None = None) -> RunMetrics:
     """The one way from a finished run to ``RunMetrics`` and every output file, for ``gsjax run`` and ``gsjax
-    sweep``: ``metrics.json``'s warnings are ``input_warnings`` (what opening the sequence reported), the run's own
-    (:func:`gsjax.app.run_warnings.run_warnings` of ``outputs``) and ``resume_warnings``; then
-    :func:`write_outputs`. Arguments as there."""
-    read = _reader(sequence, frames)
-    warnings = [*input_warnings, *run_warnings(sequence, config, outputs, read), *resume_warnings]
-    return write_outputs(sequence, config, options, state, outputs, timings, record, warnings, checkpoints,
-                         frames=frames)
-
-
-def _reader(sequence: Sequence, frames: dict | None):
-    """Frame ``t`` from ``frames`` when there, else read from ``sequence``."""
-    return sequence.read_host if not frames else (lambda t: frames[t] if t in frames else sequence.read_host(t))
-
-
-def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: dict,
-                  timings: dict, record: RunInput, warnings: list[str],
-                  checkpoints: CheckpointLedger | None = None, frames: dict | None = None) -> RunMetrics:
-    """Evaluate a finished run and write ``trajectory.txt``, ``groundtruth.txt`` (when the sequence has ground
-    truth), ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and ``metrics.json`` into
-    ``options.out``; returns the metrics.
+    sweep``: evaluate it and write ``trajectory.txt``, ``groundtruth.txt`` (when the sequence has ground truth),
+    ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and ``metrics.json`` into ``options.out``.
 
     ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` as lists; ``timings``: stage times (s);
-    ``record``: what ``config.json`` holds; ``warnings``: every warning of the run, for ``metrics.json``;
-    ``checkpoints``: the checkpoints the run wrote, for ``metrics.json``; ``frames``: host frames the run still
+    ``record``: what ``config.json`` holds; ``metrics.json``'s warnings are ``input_warnings`` (what opening the
+    sequence reported), the run's own (:func:`gsjax.app.run_warnings.run_warnings` of ``outputs``) and
+    ``resume_warnings``; ``checkpoints``: the checkpoints the run wrote; ``frames``: host frames the run still
     holds, by index (:func:`is_evaluation_frame` ones; the others are read from the sequence again).
     """
+    def read(t: int):
+        return frames[t] if frames and t in frames else sequence.read_host(t)
+
+    warnings = [*input_warnings, *run_warnings(sequence, config, outputs, read), *resume_warnings]
+    return _write_outputs(sequence, config, options, state, outputs, timings, record, warnings, checkpoints, read)
+
+
+def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: dict,
+                   timings: dict, record: RunInput, warnings: list[str], checkpoints: CheckpointLedger | None,
+                   read) -> RunMetrics:
+    """:func:`finish_run` once the warnings are worded; ``read(t)``: frame ``t`` on the host."""
     out = Path(options.out)
     t0 = time.perf_counter()
     timestamps, gt_c2w, gt_valid = sequence.gt_trajectory()
@@ -113,7 +107,6 @@ def write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions
     else:
         plot_trajectory_top_view(out / "trajectory.png", est_c2w[:, :3, 3], None,
                                  title=f"{sequence.name} (no ground truth)")
-    read = _reader(sequence, frames)
     render_metrics, cbknn = _render_metrics(sequence, read, config, options, state, outputs)
     write_ply(out / "map.ply", state.gaussians)
     timings["outputs_s"] = time.perf_counter() - t0

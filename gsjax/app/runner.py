@@ -87,10 +87,6 @@ class RunOptions:
 # ------------------------------------------------------------------------------------------------ the run
 
 
-def _outputs_to_lists(outputs: StepOutputs, count: int) -> dict:
-    return {name: np.asarray(value)[:count].tolist() for name, value in outputs._asdict().items()}
-
-
 def run_slam(
     sequence: Sequence,
     config: SlamConfig,
@@ -200,8 +196,8 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
             ledger.depth_units_checked |= bool(np.any(~real["skipped"]))
             kept.update((done + i, frame) for i, frame in enumerate(chunk.frames)
                         if is_evaluation_frame(done + i, options.eval_every))
-            for name, values in _outputs_to_lists(chunk_out, count).items():
-                outputs.setdefault(name, []).extend(values)
+            for name, values in real.items():
+                outputs.setdefault(name, []).extend(values.tolist())
             pending.append(chunk_out)
             done = ledger.frames_done = done + count
             since = ledger.segments[-1][1] if ledger.segments else 0
