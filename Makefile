@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo -n)
 APT    := DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get -y -q
 
-.PHONY: install chromium demo lint test test-slow bench gpu-aot clean
+.PHONY: install chromium demo lint test test-slow bench gpu-aot clean config-reference
 
 install: $(STAMP)
 
@@ -41,6 +41,11 @@ test: install chromium lint
 lint: install
 	$(BIN)/ruff check .
 	$(BIN)/mypy
+
+# The config reference (every field's unit, static/traced, bounds, default per preset, meaning) is generated from the
+# field declarations; tests/test_config_fields.py fails when the committed file differs.
+config-reference: install
+	$(BIN)/gsjax config --reference docs/reference/config.md
 
 test-slow: install
 	$(BIN)/python -m pytest -q -m slow tests

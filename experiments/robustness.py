@@ -48,9 +48,9 @@ CONDITIONS = ("map", "persistent", "depth", "stride", "alternatives")
 OPTIONAL_CONDITIONS = ("map_strong",)
 # the cpu preset's flags for presets.with_image_smoothing and with_coarse_to_fine (its 30 strided iterations)
 ALTERNATIVES = {
-    "blur": ["--tracking.blur_radius_px", "6", "--tracking.blur_px", "1.5"],
-    "pyramid": ["--tracking.blur_radius_px", "6", "--tracking.coarse_iters", "20", "--tracking.coarse_levels", "2",
-                "--tracking.coarse_sigma_px", "1", "--tracking.strided_iters", "10"],
+    "blur": ["--tracking.blur.radius_px", "6", "--tracking.blur.sigma_px", "1.5"],
+    "pyramid": ["--tracking.blur.radius_px", "6", "--tracking.coarse.iters", "20", "--tracking.coarse.levels", "2",
+                "--tracking.coarse.sigma_px", "1", "--tracking.strided_iters", "10"],
 }
 STUDY = "robustness_80x60"
 # a result row's factor -> the condition (sweep name suffix) it came from

@@ -1,16 +1,24 @@
 """Configs as text: overrides by dotted field name (``--tracking.iters 60``) and the JSON round trip of
-``config.json`` / ``metrics.json``. No config is ever executed as code: values are parsed as the field's type and
-validated by the config classes."""
+``config.json`` / ``metrics.json``. No config is ever executed as code: values are parsed as the field's declared
+type and validated by the config classes (:mod:`gsjax.config_fields`).
+
+Fields that moved (:data:`gsjax.slam.tracking_config.RENAMED`) still read under their old dotted names: an override
+or a sweep axis with a FutureWarning naming the new one, a ``config.json`` written before the move silently.
+"""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import typing
+import warnings
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
+from gsjax.config_fields import kind_of, spec_of
 from gsjax.slam.config import SlamConfig
+from gsjax.slam.tracking_config import RENAMED
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -18,34 +26,47 @@ if TYPE_CHECKING:
 _Config = TypeVar("_Config", bound="DataclassInstance")
 
 
-def _convert(text: str, current, path: str):
-    """Parse ``text`` as the type of the field's current value."""
+def canonical_name(path: str) -> str:
+    """The current dotted name of the config field ``path``: ``path`` itself, or where it moved (with a
+    FutureWarning naming both)."""
+    new = RENAMED.get(path)
+    if new is None:
+        return path
+    warnings.warn(f"config field {path} is now {new}; the old name still reads, for now", FutureWarning,
+                  stacklevel=3)
+    return new
+
+
+def _convert(text: str, kind: str, path: str):
+    """Parse ``text`` as a value of the field's declared type ``kind``."""
     try:
-        if isinstance(current, bool):
+        if kind == "bool":
             if text.lower() in ("1", "true", "yes", "on"):
                 return True
             if text.lower() in ("0", "false", "no", "off"):
                 return False
             raise ValueError
-        if isinstance(current, (int, np.integer)):
+        if kind == "int":
             return int(text)
-        if isinstance(current, (float, np.floating)):
+        if kind == "float":
             return float(text)
-        if isinstance(current, tuple):
+        if kind == "tuple":
             return tuple(int(x) for x in text.split(",") if x.strip())
-        if isinstance(current, str):
+        if kind == "str":
             return text
     except ValueError:
         pass
-    raise ValueError(f"--{path}: cannot read {text!r} as {type(current).__name__}")
+    raise ValueError(f"--{path}: cannot read {text!r} as {kind}")
 
 
 def apply_overrides(config: _Config, overrides: dict[str, str]) -> _Config:
-    """A copy of ``config`` with dotted field names set from strings, e.g. ``{"tracking.iters": "60"}``.
+    """A copy of ``config`` with dotted field names set from strings, e.g. ``{"tracking.iters": "60"}``; a name
+    that moved reads with a FutureWarning (:func:`canonical_name`).
 
     Raises ValueError naming the field for unknown names and unreadable or invalid values.
     """
     for path, text in overrides.items():
+        path = canonical_name(path)
         config = _set_path(config, path.split("."), text, path)
     return config
 
@@ -53,11 +74,17 @@ def apply_overrides(config: _Config, overrides: dict[str, str]) -> _Config:
 def _set_path(obj, parts: list[str], text: str, path: str):
     if not dataclasses.is_dataclass(obj):
         raise ValueError(f"--{path}: {parts[0]!r} is not a config section")
-    names = {f.name for f in dataclasses.fields(obj)}
-    if parts[0] not in names:
-        raise ValueError(f"--{path}: unknown field {parts[0]!r} (fields: {', '.join(sorted(names))})")
-    current = getattr(obj, parts[0])
-    value = _set_path(current, parts[1:], text, path) if len(parts) > 1 else _convert(text, current, path)
+    fields = {f.name: f for f in dataclasses.fields(obj)}
+    if parts[0] not in fields:
+        raise ValueError(f"--{path}: unknown field {parts[0]!r} (fields: {', '.join(sorted(fields))})")
+    field = fields[parts[0]]
+    if len(parts) > 1:
+        value = _set_path(getattr(obj, parts[0]), parts[1:], text, path)
+    elif spec_of(field) is None:
+        raise ValueError(f"--{path}: cannot read {text!r} as {kind_of(field)} (a config section: set its fields, "
+                         f"--{path}.NAME)")
+    else:
+        value = _convert(text, kind_of(field), path)
     try:
         return dataclasses.replace(obj, **{parts[0]: value})
     except ValueError as err:
@@ -88,8 +115,55 @@ def config_from_dict(data: dict[str, Any], base: _Config) -> _Config: ...
 
 
 def config_from_dict(data: dict[str, Any], base: DataclassInstance | None = None) -> DataclassInstance:
-    """Inverse of :func:`config_to_dict` (unknown keys are errors)."""
-    base = SlamConfig() if base is None else base
+    """Inverse of :func:`config_to_dict` (unknown keys are errors). A whole config's dict written before a field
+    moved reads with the field in its new place."""
+    if base is None or isinstance(base, SlamConfig):
+        data = migrate_config_dict(data)
+    return _from_dict(data, SlamConfig() if base is None else base)
+
+
+def migrate_config_dict(data: dict[str, Any]) -> dict[str, Any]:
+    """A whole config's nested dict with the fields that moved (:data:`~gsjax.slam.tracking_config.RENAMED`) in
+    their new places; ``data`` itself when none is there."""
+    moved = [(old, new) for old, new in RENAMED.items() if _lookup(data, old) is not _MISSING]
+    if not moved:
+        return data
+    data = copy.deepcopy(data)
+    for old, new in moved:
+        *parents, name = old.split(".")
+        value = _node(data, parents).pop(name)
+        *parents, name = new.split(".")
+        node = data
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[name] = value
+    return data
+
+
+_MISSING = object()
+
+
+def _lookup(data: Any, path: str) -> Any:
+    for part in path.split("."):
+        if not isinstance(data, dict) or part not in data:
+            return _MISSING
+        data = data[part]
+    return data
+
+
+def _node(data: dict, parts: list[str]) -> dict:
+    for part in parts:
+        data = data[part]
+    return data
+
+
+def canonical_config_dict(data: dict[str, Any] | None) -> dict[str, Any] | None:
+    """``data`` as this version writes the same config (old names moved, every field present), for comparing
+    records across versions (resume); None stays None."""
+    return None if data is None else config_to_dict(config_from_dict(data))
+
+
+def _from_dict(data: dict[str, Any], base: DataclassInstance) -> DataclassInstance:
     kwargs: dict[str, Any] = {}
     hints = typing.get_type_hints(type(base))
     for key, value in data.items():
@@ -97,7 +171,7 @@ def config_from_dict(data: dict[str, Any], base: DataclassInstance | None = None
             raise ValueError(f"config: unknown field {key!r}")
         current = getattr(base, key)
         if dataclasses.is_dataclass(current):
-            kwargs[key] = config_from_dict(value, current)
+            kwargs[key] = _from_dict(value, current)
         elif isinstance(current, tuple):
             kwargs[key] = tuple(value)
         else:

@@ -42,15 +42,11 @@ def _register_serialization() -> None:
     from gsjax.camera import Intrinsics
     from gsjax.data.frame import Frame
     from gsjax.gaussians import Gaussians
-    from gsjax.raster import RasterSettings
-    from gsjax.raster.cbknn import CBKNN
-    from gsjax.slam import config
+    from gsjax.slam.config import CONFIG_CLASSES
     from gsjax.slam.state import KeyframeBuffer, SlamState
     from gsjax.slam.system import StepOutputs
 
-    for cls in (SlamState, KeyframeBuffer, Gaussians, Frame, Intrinsics, RasterSettings, CBKNN, config.SlamConfig,
-                config.TrackingConfig, config.MappingConfig, config.DensifyConfig, config.CBKNNConfig,
-                config.NoiseConfig):
+    for cls in (SlamState, KeyframeBuffer, Gaussians, Frame, Intrinsics, *CONFIG_CLASSES):
         export.register_pytree_node_serialization(cls, serialized_name=f"gsjax.{cls.__qualname__}",
                                                   serialize_auxdata=pickle.dumps, deserialize_auxdata=pickle.loads)
     export.register_namedtuple_serialization(StepOutputs, serialized_name="gsjax.StepOutputs")

@@ -72,7 +72,7 @@ def skipped_warning(sequence: Sequence, index: int, depth_valid: float, config: 
 def divergence_warning(sequence: Sequence, index: int, diverged: bool) -> str:
     """Frame ``index``'s tracking was retried (``diverged``: and the retry diverged too)."""
     if diverged:
-        return (f"{sequence.describe_frame(index)}: tracking diverged twice (beyond tracking.max_step_m / "
+        return (f"{sequence.describe_frame(index)}: tracking diverged twice (beyond tracking.guard.max_step_m / "
                 "max_step_deg of the constant-velocity prediction); the frame keeps the prediction")
     return (f"{sequence.describe_frame(index)}: tracking diverged (a loss jump or a pose beyond the step bound); "
             "retried once with smaller steps")

@@ -235,6 +235,9 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
 
 
 def _check_resumable(saved: dict, key_now: dict, out: Path) -> None:
+    from gsjax.config_text import canonical_config_dict
+
+    saved = {**saved, "config": canonical_config_dict(saved.get("config"))}  # written by an older gsjax, maybe
     for key, value in key_now.items():
         if saved.get(key) != value:
             raise ValueError(

@@ -11,9 +11,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from gsjax.app.run_dir import RunDirError
+from gsjax.config_text import canonical_config_dict
 from gsjax.eval.run_input import RunInput, read_run_input
 from gsjax.eval.run_metrics import RunMetrics, read_run_metrics
 from gsjax.io.atomic import remove_stale_temporaries
+from gsjax.slam.tracking_config import RENAMED
 
 
 def run_folder(out: Path, index: int) -> Path:
@@ -45,11 +47,19 @@ def finished_runs(out: Path, expected: dict[int, RunInput]) -> dict[int, RunMetr
         except ValueError as error:
             raise RunDirError(f"--resume: {error}") from None
         want = expected[index]
-        if saved.resume_key() != want.resume_key() or (saved.sweep or {}).get("values") != want.sweep["values"]:
+        if _comparable(saved) != _comparable(want):
             raise RunDirError(f"--resume: {folder} was made with a different config, size, chunk or seed than this "
                               "sweep's; resume with the same options, or use --overwrite or a new --out")
         done[index] = metrics
     return done
+
+
+def _comparable(record: RunInput) -> tuple[dict, dict]:
+    """What a finished run must match, as this version writes it (a run made before a field moved compares by the
+    field's new name)."""
+    key = dict(record.resume_key(), config=canonical_config_dict(record.config))
+    values = {RENAMED.get(name, name): value for name, value in ((record.sweep or {}).get("values") or {}).items()}
+    return key, values
 
 
 def prepare_rerun(out: Path, index: int) -> None:

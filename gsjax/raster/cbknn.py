@@ -35,19 +35,14 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from gsjax.camera import camera_center, rotation_angle
-from gsjax.checks import is_checkable
+from gsjax.config_fields import check_fields, param
 from gsjax.raster.composite import Slots, slot_alpha
 from gsjax.raster.project import Projected
 
 SELECT_MODES = ("first_k", "top_weight")
 SHIFT_MODES = ("unit", "fraction")
-
-
-def _static(default):
-    return dataclasses.field(default=default, metadata=dict(static=True))
 
 
 @jax.tree_util.register_dataclass
@@ -71,46 +66,25 @@ class CBKNN:
       shift_mode: ``"unit"`` or ``"fraction"``.
     """
 
-    alpha: float = 0.2
-    k0: float = 5.0
-    beta: float = 0.3
-    eps: float = 1e-6
-    tau_t: float = 0.05
-    tau_r: float = 5.0
-    k_min: int = _static(2)
-    k_max: int = _static(16)
-    cell: int = _static(8)
-    position: bool = _static(True)
-    colour: bool = _static(True)
-    truncate: bool = _static(False)
-    select: str = _static("first_k")
-    shift_mode: str = _static("unit")
+    alpha: float = param(0.2, "px", low=0.0, unit_by=("shift_mode", {"unit": "px", "fraction": "ratio"}))
+    k0: float = param(5.0, "count", low=0.0, low_open=True)
+    beta: float = param(0.3, "weight", low=0.0)
+    eps: float = param(1e-6, "ratio", low=0.0, low_open=True)
+    tau_t: float = param(0.05, "m", low=0.0, low_open=True)
+    tau_r: float = param(5.0, "deg", low=0.0, low_open=True)
+    k_min: int = param(2, "count", static=True, low=1)
+    k_max: int = param(16, "count", static=True, low=1)
+    cell: int = param(8, "px", static=True, low=1)
+    position: bool = param(True, "flag", static=True)
+    colour: bool = param(True, "flag", static=True)
+    truncate: bool = param(False, "flag", static=True)
+    select: str = param("first_k", "choice", static=True, choices=SELECT_MODES)
+    shift_mode: str = param("unit", "choice", static=True, choices=SHIFT_MODES)
 
     def __post_init__(self):
-        for name in ("k_min", "k_max", "cell"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"CBKNN.{name} must be a positive int, got {value!r}")
+        check_fields(self, "CBKNN")
         if self.k_min > self.k_max:
             raise ValueError(f"CBKNN.k_min ({self.k_min}) must not exceed k_max ({self.k_max})")
-        for name in ("position", "colour", "truncate"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"CBKNN.{name} must be a bool, got {getattr(self, name)!r}")
-        if self.select not in SELECT_MODES:
-            raise ValueError(f"CBKNN.select must be one of {SELECT_MODES}, got {self.select!r}")
-        if self.shift_mode not in SHIFT_MODES:
-            raise ValueError(f"CBKNN.shift_mode must be one of {SHIFT_MODES}, got {self.shift_mode!r}")
-        checks = (("alpha", 0.0, False), ("k0", 0.0, True), ("beta", 0.0, False), ("eps", 0.0, True),
-                  ("tau_t", 0.0, True), ("tau_r", 0.0, True))
-        for name, low, strict in checks:
-            value = getattr(self, name)
-            if not is_checkable(value):
-                continue  # traced, or a placeholder in a pytree (e.g. vmap's in_axes): not checkable
-            v = np.asarray(value, np.float64)
-            ok = np.isfinite(v).all() and (np.all(v > low) if strict else np.all(v >= low))
-            if not ok:
-                bound = f"> {low}" if strict else f">= {low}"
-                raise ValueError(f"CBKNN.{name} must be finite and {bound}, got {value!r}")
 
 
 class CBKNNStats(NamedTuple):

@@ -7,9 +7,8 @@ import dataclasses
 import math
 
 import jax
-import numpy as np
 
-from gsjax.checks import is_checkable
+from gsjax.config_fields import check_fields, param
 from gsjax.raster import pallas
 from gsjax.raster.binning import TileGrid
 from gsjax.raster.project import DILATION
@@ -47,43 +46,27 @@ class RasterSettings:
         Gaussians. The same render either way.
       dilation: px^2 added to every 2D covariance (3DGS's low-pass filter, 0.3), traced. Rendering every other
         pixel of an image exactly (a strided grid: focal lengths and principal point halved, see
-        :func:`gsjax.camera.Intrinsics.strided`) takes a quarter of it.
+        :func:`gsjax.camera.Intrinsics.strided`) takes a quarter of it. It stays when a preset changes width (a
+        property of the pixel grid, not of the scene).
 
     The defaults render dense SplaTAM-like maps without truncation (measured in ``experiments/raster_defaults.py``);
     whatever the settings, truncation is reported in ``Render.stats``.
     """
 
-    tile_size: int = dataclasses.field(default=8, metadata=dict(static=True))
-    tile_capacity: int = dataclasses.field(default=512, metadata=dict(static=True))
-    max_contributors: int = dataclasses.field(default=64, metadata=dict(static=True))
-    intersections_per_gaussian: float = dataclasses.field(default=4.0, metadata=dict(static=True))
-    intersections_per_pixel: float = dataclasses.field(default=16.0, metadata=dict(static=True))
-    tiles_per_batch: int = dataclasses.field(default=512, metadata=dict(static=True))
-    near: float = 0.2
-    slots_per_batch: int = dataclasses.field(default=1 << 25, metadata=dict(static=True))
-    backend: str = dataclasses.field(default="auto", metadata=dict(static=True))
-    pose_only: bool = dataclasses.field(default=False, metadata=dict(static=True))
-    dilation: float = DILATION
+    tile_size: int = param(8, "px", static=True, low=1)
+    tile_capacity: int = param(512, "count", static=True, low=1)
+    max_contributors: int = param(64, "count", static=True, low=1)
+    intersections_per_gaussian: float = param(4.0, "ratio", static=True, low=0.0, low_open=True)
+    intersections_per_pixel: float = param(16.0, "ratio", static=True, low=0.0, low_open=True)
+    tiles_per_batch: int = param(512, "count", static=True, low=1)
+    near: float = param(0.2, "m", low=0.0, low_open=True)
+    slots_per_batch: int = param(1 << 25, "count", static=True, low=1)
+    backend: str = param("auto", "choice", static=True, choices=BACKENDS)
+    pose_only: bool = param(False, "flag", static=True)
+    dilation: float = param(DILATION, "px^2", low=0.0)
 
     def __post_init__(self):
-        if self.backend not in BACKENDS:
-            raise ValueError(f"RasterSettings.backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
-        for name in ("tile_size", "tile_capacity", "max_contributors", "tiles_per_batch", "slots_per_batch"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"RasterSettings.{name} must be a positive int, got {value!r}")
-        for name in ("intersections_per_gaussian", "intersections_per_pixel"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0):
-                raise ValueError(f"RasterSettings.{name} must be a positive number, got {value!r}")
-        if is_checkable(self.near) and not (
-            np.isfinite(np.asarray(self.near)).all() and np.all(np.asarray(self.near) > 0)
-        ):
-            raise ValueError(f"RasterSettings.near must be a positive finite number (m), got {self.near!r}")
-        if is_checkable(self.dilation) and not (
-            np.isfinite(np.asarray(self.dilation)).all() and np.all(np.asarray(self.dilation) >= 0)
-        ):
-            raise ValueError(f"RasterSettings.dilation must be a finite number >= 0 (px^2), got {self.dilation!r}")
+        check_fields(self, "RasterSettings")
 
     @property
     def uses_pallas(self) -> bool:

@@ -9,155 +9,25 @@ overrides by dotted field name and the JSON round trip in :mod:`gsjax.config_tex
 from __future__ import annotations
 
 import dataclasses
-import math
-from typing import TypeVar
 
 import jax
-import numpy as np
 
-from gsjax.checks import is_checkable
+from gsjax.config_fields import check_fields, param
 from gsjax.names import CBKNN_MODES
 from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
+from gsjax.slam.tracking_config import (
+    BEST_POSE,
+    TRACKING_OPTIMIZERS,
+    CoarseToFine,
+    DivergenceGuard,
+    EarlyStop,
+    Exposure,
+    ImageBlur,
+    TrackingConfig,
+)
 
 SLAM_MAX_CONTRIBUTORS = 96
-TRACKING_OPTIMIZERS = ("adam", "lm")
-BEST_POSE = ("pre_step", "post_step")
-
-_T = TypeVar("_T")
-
-
-def static(default: _T) -> _T:
-    """A static (treedef, compile-time) dataclass field."""
-    return dataclasses.field(default=default, metadata=dict(static=True))
-
-
-def _check_positive_int(owner: str, name: str, value, minimum: int = 1) -> None:
-    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < minimum:
-        raise ValueError(f"{owner}.{name} must be an int >= {minimum}, got {value!r}")
-
-
-def _check_number(owner: str, name: str, value, low: float, high: float = math.inf, strict_low=False) -> None:
-    if not is_checkable(value):
-        return  # traced, or a placeholder JAX puts in a pytree (e.g. vmap's in_axes): checked when built
-    v = np.asarray(value, np.float64)
-    ok = np.isfinite(v).all() and np.all(v > low if strict_low else v >= low) and np.all(v <= high)
-    if not ok:
-        bound = f"{'>' if strict_low else '>='} {low}" + (f" and <= {high}" if high < math.inf else "")
-        raise ValueError(f"{owner}.{name} must be a finite number {bound}, got {value!r}")
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class TrackingConfig:
-    """Camera tracking (method_spec A.6): a fixed number of iterations on the pose tangent (left perturbation).
-
-    Attributes:
-      iters: optimisation iterations per frame.
-      optimizer: ``"adam"`` (SplaTAM parity: a fresh Adam per frame) or ``"lm"`` (Levenberg-Marquardt with
-        optimistix on the masked residuals, Jacobian by forward mode).
-      lr_trans: Adam step size of the translation part rho (m).
-      lr_rot: Adam step size of the rotation part phi (rad). SplaTAM's quaternion learning rate q corresponds to
-        about 2 q here (a unit quaternion's vector part moves by half the angle).
-      lambda_color, lambda_depth: weights of the summed L1 colour and depth terms.
-      sil_threshold: pixels enter the loss where the rendered silhouette exceeds this (and depth is valid).
-      best_pose: ``"pre_step"`` keeps the pose whose loss was lowest; ``"post_step"`` reproduces SplaTAM's
-        off-by-one (stores the pose after the step taken from the best loss).
-      lr_final_ratio: the Adam step sizes decay exponentially over the iterations to this fraction (1 = constant,
-        SplaTAM). Adam's steps do not shrink near the optimum, so a constant step leaves the pose jittering within
-        about one step; decaying it lets the last iterations settle.
-      normalized_depth: compare the observed depth with the rendered depth divided by the silhouette, D / S,
-        instead of SplaTAM's D = sum w z. With S < 1 (young maps, low resolution) D underestimates depth by
-        (1 - S) z, which biases the camera along its axis by about that much; D / S removes the bias.
-      max_step_m, max_step_deg: a physical bound on how far tracking may move the camera from its
-        constant-velocity prediction in one frame (camera centre, m; rotation, degrees). A tracked pose beyond it
-        has diverged.
-      loss_jump: tracking has also diverged when its loss exceeds this many times the previous tracked frame's.
-      retry_lr_scale: a diverged frame is tracked once more from the constant-velocity prediction with the step
-        sizes scaled by this; the result within the bound with the lower loss is kept, and when neither attempt is
-        within it the frame keeps the prediction (``StepOutputs.retried``, ``diverged``). (``adam`` only: the LM
-        solver has no step size to change, so a diverged LM frame keeps the prediction.)
-      converge_window: 0 (SplaTAM) runs all ``iters`` iterations; W > 0 stops a frame's ``adam`` tracking once W
-        iterations in a row have not brought the loss ``converge_rtol`` (relative) below the loss of the last
-        iteration that did, ``iters`` staying the cap (``StepOutputs.tracking_iters`` counts the iterations run).
-      converge_rtol: the relative loss drop that counts as progress for ``converge_window``.
-      match_exposure: (traced bool) scale the render's colour per channel to the frame's brightness before the
-        colour term (:func:`gsjax.slam.losses.exposure_gain`), so that a camera's auto exposure changing after the
-        map was made is not mistaken for motion. False: SplaTAM.
-      strided_iters: 0 (SplaTAM) tracks on every pixel only; S > 0 first runs S iterations on a quarter of the
-        pixels, every other one of each row and column (the four such grids in turn), rendered exactly as the full
-        render renders them (:meth:`gsjax.camera.Intrinsics.strided`) at a fraction of its cost, then the ``iters``
-        iterations on every pixel from there; only those compete for the best pose. ``adam`` keeps one state over
-        all S + ``iters`` (the strided loss is scaled by 4, the pixel ratio, and the step sizes decay over all);
-        ``lm`` solves on one grid with at most S steps, then on every pixel from its solution.
-      blur_radius_px: 0 (SplaTAM) compares render and frame pixel by pixel; R > 0 compiles image-space smoothing:
-        the masked residuals (render - frame, colour and depth) pass through a Gaussian filter of ``blur_px`` std
-        (px, traced) truncated at R px before the L1 sum, which is blurring render and frame together, the
-        textbook way to widen a photometric basin. ``blur_px`` 0 with R > 0 is the unblurred loss.
-      coarse_iters, coarse_levels, coarse_sigma_px: coarse-to-fine tracking (``adam`` only; needs
-        ``blur_radius_px``): ``coarse_iters`` iterations run first, split over ``coarse_levels`` levels from the
-        coarsest, each on every pixel with the residuals blurred at ``coarse_sigma_px`` x 2^(levels - 1 - level) px
-        (a Gaussian pyramid's smoothing without its subsampling), then the strided and full iterations; only the
-        full ones compete for the best pose. The step sizes decay over all iterations.
-      reselect_every: 1 (SplaTAM) chooses every pixel's contributors (binning and the selection walk) at each
-        iteration's own pose; R > 1 chooses them at iterations 0, R, 2R, ... (counted over coarse, strided and full
-        iterations; the strided grids take the full image's slots at their pixels) and composites those slots at
-        the poses in between, with the render and its gradient exact for those slots (``adam`` only; see
-        :func:`gsjax.raster.select_slots`). The map is fixed while a frame is tracked and the pose moves by
-        millimetres, so few slots that matter change. Each iteration's loss (and so the best pose's, the frame's
-        ``tracking_loss``) is the composite of the slots it was given.
-    """
-
-    iters: int = static(40)
-    optimizer: str = static("adam")
-    lr_trans: float = 2e-3
-    lr_rot: float = 8e-4
-    lambda_color: float = 0.5
-    lambda_depth: float = 1.0
-    sil_threshold: float = 0.99
-    lr_final_ratio: float = 1.0
-    best_pose: str = static("pre_step")
-    normalized_depth: bool = static(False)
-    max_step_m: float = 0.5
-    max_step_deg: float = 30.0
-    loss_jump: float = 10.0
-    retry_lr_scale: float = 0.5
-    converge_window: int = static(0)
-    converge_rtol: float = 1e-3
-    strided_iters: int = static(0)
-    match_exposure: bool = False
-    blur_radius_px: int = static(0)
-    blur_px: float = 0.0
-    coarse_iters: int = static(0)
-    coarse_levels: int = static(2)
-    coarse_sigma_px: float = 1.0
-    reselect_every: int = static(1)
-
-    def __post_init__(self):
-        _check_positive_int("tracking", "iters", self.iters)
-        _check_positive_int("tracking", "reselect_every", self.reselect_every)
-        _check_positive_int("tracking", "converge_window", self.converge_window, 0)
-        _check_positive_int("tracking", "strided_iters", self.strided_iters, 0)
-        _check_positive_int("tracking", "blur_radius_px", self.blur_radius_px, 0)
-        _check_positive_int("tracking", "coarse_iters", self.coarse_iters, 0)
-        _check_positive_int("tracking", "coarse_levels", self.coarse_levels)
-        _check_number("tracking", "blur_px", self.blur_px, 0.0)
-        _check_number("tracking", "coarse_sigma_px", self.coarse_sigma_px, 0.0)
-        if self.coarse_iters and not self.blur_radius_px:
-            raise ValueError("tracking.coarse_iters needs tracking.blur_radius_px > 0 (the coarse levels' filter)")
-        if self.coarse_iters and self.optimizer != "adam":
-            raise ValueError("tracking.coarse_iters runs with tracking.optimizer adam only")
-        _check_number("tracking", "converge_rtol", self.converge_rtol, 0.0, 1.0)
-        if self.optimizer not in TRACKING_OPTIMIZERS:
-            raise ValueError(f"tracking.optimizer must be one of {TRACKING_OPTIMIZERS}, got {self.optimizer!r}")
-        if self.best_pose not in BEST_POSE:
-            raise ValueError(f"tracking.best_pose must be one of {BEST_POSE}, got {self.best_pose!r}")
-        for name in ("lr_trans", "lr_rot", "lambda_color", "lambda_depth"):
-            _check_number("tracking", name, getattr(self, name), 0.0)
-        _check_number("tracking", "lr_final_ratio", self.lr_final_ratio, 0.0, 1.0, strict_low=True)
-        _check_number("tracking", "sil_threshold", self.sil_threshold, 0.0, 1.0)
-        for name in ("max_step_m", "max_step_deg", "loss_jump", "retry_lr_scale"):
-            _check_number("tracking", name, getattr(self, name), 0.0, strict_low=True)
 
 
 @jax.tree_util.register_dataclass
@@ -176,16 +46,18 @@ class MappingConfig:
         Gaussians render a depth biased towards the camera on slanted surfaces (nearer neighbours come first in
         the blend) by up to a fraction of a pixel footprint; at low resolution that is centimetres, and the first
         map needs a larger step to remove it before the second frame tracks against it.
-      lambda_color, lambda_depth: loss weights; ``ssim_weight`` mixes 1 - SSIM into the colour term.
-      prune_opacity: prune Gaussians with opacity below this; ``prune_scale_ratio``: or with scale above this
-        fraction of the scene radius.
+      lambda_color, lambda_depth: loss weights of the colour and depth terms.
+      ssim_weight: mixes 1 - SSIM into the colour term.
+      prune_opacity: prune Gaussians with opacity below this.
+      prune_scale_ratio: prune Gaussians with a scale above this fraction of the scene radius (given at the
+        preset's width: it follows the pixel footprint, see :mod:`gsjax.slam.presets`).
       prune_iters: the mapping iterations at which pruning runs (counted from the first, strided or not).
       clamp_rgb: (traced bool) project the colours back into [0, 1] after every mapping step. SplaTAM leaves them
         unbounded (False: its behaviour): with Adam's eps 1e-15 a Gaussian with a near-zero colour gradient takes
         full-size steps and can leave [0, 1] far, and renders then depend on whether it is in view.
       skip_step_at_prune: reproduce SplaTAM's quirk of skipping the Adam step at pruning iterations.
-      overlap_samples: depth pixels sampled to measure keyframe overlap; ``overlap_margin``: border (px) a
-        projected sample must clear to count as inside a keyframe.
+      overlap_samples: depth pixels sampled to measure keyframe overlap.
+      overlap_margin: the border a projected sample must clear to count as inside a keyframe.
       every: 1 (SplaTAM) maps every frame; E > 1 maps only frames t with t % E == 0, keyframes and the first frame
         with depth (the others are tracked and densified, their new Gaussians optimised by the next mapping).
       reselect_every: 1 (SplaTAM) chooses every pixel's contributors at each iteration, on the map as it is then;
@@ -194,40 +66,29 @@ class MappingConfig:
         slots; a Gaussian that would newly enter a pixel's first K in between does not).
     """
 
-    iters: int = static(30)
-    strided_iters: int = static(0)
-    window_size: int = static(24)
-    lr_means: float = 1e-4
-    lr_means_first: float = 1e-4
-    lr_rgb: float = 2.5e-3
-    lr_opacity: float = 5e-2
-    lr_scale: float = 1e-3
-    lambda_color: float = 0.5
-    lambda_depth: float = 1.0
-    ssim_weight: float = 0.2
-    prune_opacity: float = 0.005
-    prune_scale_ratio: float = 0.1
-    prune_iters: tuple = static((0, 20))
-    skip_step_at_prune: bool = static(False)
-    clamp_rgb: bool = False
-    overlap_samples: int = static(1600)
-    overlap_margin: float = 20.0
-    reselect_every: int = static(1)
-    every: int = static(1)
+    iters: int = param(30, "iterations", static=True, low=1)
+    strided_iters: int = param(0, "iterations", static=True, low=0)
+    window_size: int = param(24, "views", static=True, low=2)
+    lr_means: float = param(1e-4, "m", low=0.0)
+    lr_means_first: float = param(1e-4, "m", low=0.0)
+    lr_rgb: float = param(2.5e-3, "colour", low=0.0)
+    lr_opacity: float = param(5e-2, "logit", low=0.0)
+    lr_scale: float = param(1e-3, "log m", low=0.0)
+    lambda_color: float = param(0.5, "weight", low=0.0)
+    lambda_depth: float = param(1.0, "weight", low=0.0)
+    ssim_weight: float = param(0.2, "weight", low=0.0, high=1.0)
+    prune_opacity: float = param(0.005, "opacity", low=0.0)
+    prune_scale_ratio: float = param(0.1, "ratio", low=0.0, scaling="footprint")
+    prune_iters: tuple = param((0, 20), "iterations", static=True, low=0)
+    skip_step_at_prune: bool = param(False, "flag", static=True)
+    clamp_rgb: bool = param(False, "flag")
+    overlap_samples: int = param(1600, "count", static=True, low=1)
+    overlap_margin: float = param(20.0, "px", low=0.0)
+    reselect_every: int = param(1, "iterations", static=True, low=1)
+    every: int = param(1, "frames", static=True, low=1)
 
     def __post_init__(self):
-        _check_positive_int("mapping", "iters", self.iters)
-        _check_positive_int("mapping", "every", self.every)
-        _check_positive_int("mapping", "reselect_every", self.reselect_every)
-        _check_positive_int("mapping", "strided_iters", self.strided_iters, 0)
-        _check_positive_int("mapping", "window_size", self.window_size, 2)
-        _check_positive_int("mapping", "overlap_samples", self.overlap_samples)
-        for name in ("lr_means", "lr_means_first", "lr_rgb", "lr_opacity", "lr_scale", "lambda_color", "lambda_depth",
-                     "prune_opacity", "prune_scale_ratio", "overlap_margin"):
-            _check_number("mapping", name, getattr(self, name), 0.0)
-        _check_number("mapping", "ssim_weight", self.ssim_weight, 0.0, 1.0)
-        if not isinstance(self.prune_iters, tuple) or not all(isinstance(i, int) and i >= 0 for i in self.prune_iters):
-            raise ValueError(f"mapping.prune_iters must be a tuple of ints >= 0, got {self.prune_iters!r}")
+        check_fields(self, "mapping")
 
 
 @jax.tree_util.register_dataclass
@@ -242,16 +103,12 @@ class DensifyConfig:
       init_opacity: opacity of new Gaussians (SplaTAM: 0.5).
     """
 
-    sil_threshold: float = 0.5
-    depth_error_factor: float = 50.0
-    init_opacity: float = 0.5
+    sil_threshold: float = param(0.5, "ratio", low=0.0, high=1.0)
+    depth_error_factor: float = param(50.0, "ratio", low=0.0)
+    init_opacity: float = param(0.5, "opacity", low=0.0, low_open=True, high=1.0, high_open=True)
 
     def __post_init__(self):
-        _check_number("densify", "sil_threshold", self.sil_threshold, 0.0, 1.0)
-        _check_number("densify", "depth_error_factor", self.depth_error_factor, 0.0)
-        _check_number("densify", "init_opacity", self.init_opacity, 0.0, 1.0, strict_low=True)
-        if is_checkable(self.init_opacity) and float(np.max(self.init_opacity)) >= 1.0:
-            raise ValueError(f"densify.init_opacity must be < 1, got {self.init_opacity!r}")
+        check_fields(self, "densify")
 
 
 @jax.tree_util.register_dataclass
@@ -270,28 +127,22 @@ class CBKNNConfig:
       smoothing_base_k, smoothing_min_k, smoothing_max_k, smoothing_dropout: that smoothing's parameters.
     """
 
-    mode: str = static("off")
+    mode: str = param("off", "choice", static=True, choices=CBKNN_MODES)
     params: CBKNN = CBKNN()
-    track_keyframes: bool = static(True)
-    map_keyframes: bool = static(True)
-    densify: bool = static(True)
-    lambda_color_keyframe: float = 0.6
-    kf_overlap_smoothing: bool = static(False)
-    smoothing_base_k: int = static(6)
-    smoothing_min_k: int = static(2)
-    smoothing_max_k: int = static(16)
-    smoothing_dropout: float = static(0.4)
+    track_keyframes: bool = param(True, "flag", static=True)
+    map_keyframes: bool = param(True, "flag", static=True)
+    densify: bool = param(True, "flag", static=True)
+    lambda_color_keyframe: float = param(0.6, "weight", low=0.0)
+    kf_overlap_smoothing: bool = param(False, "flag", static=True)
+    smoothing_base_k: int = param(6, "count", static=True, low=1)
+    smoothing_min_k: int = param(2, "count", static=True, low=1)
+    smoothing_max_k: int = param(16, "count", static=True, low=1)
+    smoothing_dropout: float = param(0.4, "ratio", static=True, low=0.0, high=1.0, high_open=True)
 
     def __post_init__(self):
-        if self.mode not in CBKNN_MODES:
-            raise ValueError(f"cbknn.mode must be one of {CBKNN_MODES}, got {self.mode!r}")
-        _check_number("cbknn", "lambda_color_keyframe", self.lambda_color_keyframe, 0.0)
-        for name in ("smoothing_base_k", "smoothing_min_k", "smoothing_max_k"):
-            _check_positive_int("cbknn", name, getattr(self, name))
+        check_fields(self, "cbknn")
         if self.smoothing_min_k > self.smoothing_max_k:
             raise ValueError("cbknn.smoothing_min_k must not exceed cbknn.smoothing_max_k")
-        if not 0.0 <= self.smoothing_dropout < 1.0:
-            raise ValueError(f"cbknn.smoothing_dropout must lie in [0, 1), got {self.smoothing_dropout!r}")
 
     @property
     def smooth_renders(self) -> bool:
@@ -317,22 +168,20 @@ class NoiseConfig:
       persistent_means_cm, persistent_rgb: std (cm; colour units) of noise added once to every active mean and
         colour of the stored map itself, at the start of frame ``persistent_frame`` (before it is tracked), and left
         there: tracking from then on sees the noisy map, and only mapping's own updates repair it (the paper's
-        "noisy Gaussian parameters"). ``persistent_frame`` >= 1 (frame 0 builds the first map).
+        "noisy Gaussian parameters").
+      persistent_frame: the frame at whose start the persistent noise is added (>= 1: frame 0 builds the first
+        map).
     """
 
-    map_means_cm: float = 0.0
-    map_rgb: float = 0.0
-    depth_cm: float = 0.0
-    persistent_means_cm: float = 0.0
-    persistent_rgb: float = 0.0
-    persistent_frame: int = 1
+    map_means_cm: float = param(0.0, "cm", low=0.0)
+    map_rgb: float = param(0.0, "colour", low=0.0)
+    depth_cm: float = param(0.0, "cm", low=0.0)
+    persistent_means_cm: float = param(0.0, "cm", low=0.0)
+    persistent_rgb: float = param(0.0, "colour", low=0.0)
+    persistent_frame: int = param(1, "frame", low=1)
 
     def __post_init__(self):
-        for name in ("map_means_cm", "map_rgb", "depth_cm", "persistent_means_cm", "persistent_rgb"):
-            _check_number("noise", name, getattr(self, name), 0.0)
-        _check_number("noise", "persistent_frame", self.persistent_frame, 1.0)
-        if is_checkable(self.persistent_frame) and np.any(np.asarray(self.persistent_frame) % 1):
-            raise ValueError(f"noise.persistent_frame must be an int >= 1, got {self.persistent_frame!r}")
+        check_fields(self, "noise")
 
 
 @jax.tree_util.register_dataclass
@@ -362,17 +211,23 @@ class SlamConfig:
     densify: DensifyConfig = DensifyConfig()
     cbknn: CBKNNConfig = CBKNNConfig()
     raster: RasterSettings = RasterSettings(max_contributors=SLAM_MAX_CONTRIBUTORS)
-    keyframe_every: int = static(5)
-    scene_radius_depth_ratio: float = 3.0
-    min_valid_depth: float = static(0.01)
+    keyframe_every: int = param(5, "frames", static=True, low=1)
+    scene_radius_depth_ratio: float = param(3.0, "ratio", low=0.0, low_open=True)
+    min_valid_depth: float = param(0.01, "ratio", static=True, low=0.0, high=1.0)
     noise: NoiseConfig = NoiseConfig()
 
     def __post_init__(self):
-        _check_positive_int("config", "keyframe_every", self.keyframe_every)
-        _check_number("config", "scene_radius_depth_ratio", self.scene_radius_depth_ratio, 0.0, strict_low=True)
-        _check_number("config", "min_valid_depth", self.min_valid_depth, 0.0, 1.0)
+        check_fields(self, "config")
         if self.cbknn.smooth_renders and self.cbknn.params.k_max > self.raster.max_contributors:
             raise ValueError(
                 f"cbknn.params.k_max ({self.cbknn.params.k_max}) exceeds raster.max_contributors "
                 f"({self.raster.max_contributors})"
             )
+
+
+# Every config class (a pytree), for serialisation of the exported programs (gsjax.app.programs).
+CONFIG_CLASSES = (SlamConfig, TrackingConfig, DivergenceGuard, EarlyStop, ImageBlur, CoarseToFine, Exposure,
+                  MappingConfig, DensifyConfig, CBKNNConfig, NoiseConfig, RasterSettings, CBKNN)
+__all__ = ["BEST_POSE", "CONFIG_CLASSES", "SLAM_MAX_CONTRIBUTORS", "TRACKING_OPTIMIZERS", "CBKNNConfig",
+           "CoarseToFine", "DensifyConfig", "DivergenceGuard", "EarlyStop", "Exposure", "ImageBlur", "MappingConfig",
+           "NoiseConfig", "SlamConfig", "TrackingConfig"]

@@ -84,8 +84,8 @@ class TrackingTerms(NamedTuple):
         """The terms ``tracking`` sets; ``lambda_color`` (a keyframe's) and ``blur_px`` (a coarse level's) replace
         its own when given."""
         return cls(tracking.lambda_color if lambda_color is None else lambda_color, tracking.lambda_depth,
-                   tracking.sil_threshold, tracking.normalized_depth, tracking.match_exposure,
-                   tracking.blur_px if blur_px is None else blur_px, tracking.blur_radius_px)
+                   tracking.sil_threshold, tracking.normalized_depth, tracking.exposure.match,
+                   tracking.blur.sigma_px if blur_px is None else blur_px, tracking.blur.radius_px)
 
 
 def tracking_loss(view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, terms: TrackingTerms) -> jax.Array:

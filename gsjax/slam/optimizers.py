@@ -33,7 +33,7 @@ def pose_optimizer(tracking: TrackingConfig) -> optax.GradientTransformation:
     whose gradient is not finite is skipped and counted (``total_notfinite`` in the state). ``tracking``: the
     iteration counts and step sizes."""
     cfg = tracking
-    total = cfg.coarse_iters + cfg.strided_iters + cfg.iters  # one Adam over every iteration of the frame
+    total = cfg.coarse.iters + cfg.strided_iters + cfg.iters  # one Adam over every iteration of the frame
 
     def adam(lr):
         decay = lambda count: lr * cfg.lr_final_ratio ** (count / max(total - 1, 1))  # noqa: E731

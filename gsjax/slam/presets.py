@@ -17,10 +17,11 @@ from __future__ import annotations
 
 import dataclasses
 
+from gsjax.config_fields import rescale
 from gsjax.names import PRESETS
 from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
-from gsjax.slam.config import CBKNNConfig, MappingConfig, SlamConfig, TrackingConfig
+from gsjax.slam.config import CBKNNConfig, CoarseToFine, ImageBlur, MappingConfig, SlamConfig, TrackingConfig
 
 # The width (px) each preset's pixel-sized settings are given for: the cpu preset's working width, and the native
 # width of the dataset each paper preset is for (Replica 1200x680, TUM and ScanNet 640x480).
@@ -40,24 +41,13 @@ def _check_name(name: str) -> None:
 
 
 def at_width(config: SlamConfig, width: int, preset_width: int) -> SlamConfig:
-    """``config`` with its pixel-sized settings (``mapping.overlap_margin``; ``cbknn.params.alpha`` when it is px;
-    ``tracking.blur_px`` and ``coarse_sigma_px``) scaled from ``preset_width`` to ``width`` px, and
+    """``config`` with the fields that follow the width scaled from ``preset_width`` to ``width`` px: every traced
+    field in px (``mapping.overlap_margin``, ``tracking.blur.sigma_px``, ``tracking.coarse.sigma_px``,
+    ``cbknn.params.alpha`` when its shift mode makes it px) by ``width / preset_width``, and
     ``mapping.prune_scale_ratio`` by the pixel footprint (``preset_width / width``); the very same config when the two
-    agree. (``tracking.blur_radius_px`` is a shape and stays.)"""
-    if width == preset_width:
-        return config
-    scale = width / preset_width
-    params = config.cbknn.params
-    if params.shift_mode == "unit":
-        params = dataclasses.replace(params, alpha=params.alpha * scale)
-    return dataclasses.replace(
-        config,
-        tracking=dataclasses.replace(config.tracking, blur_px=config.tracking.blur_px * scale,
-                                     coarse_sigma_px=config.tracking.coarse_sigma_px * scale),
-        mapping=dataclasses.replace(config.mapping, overlap_margin=config.mapping.overlap_margin * scale,
-                                    prune_scale_ratio=config.mapping.prune_scale_ratio / scale),
-        cbknn=dataclasses.replace(config.cbknn, params=params),
-    )
+    agree. Which fields those are is declared with each field (:class:`gsjax.config_fields.FieldSpec`); static ones
+    in px (``tracking.blur.radius_px``, tile and cell sizes) are shapes and stay."""
+    return rescale(config, width / preset_width)
 
 
 def _cbknn_values(k0: float) -> CBKNNConfig:
@@ -136,9 +126,9 @@ def _preset_values(name: str) -> SlamConfig:
 
 def with_image_smoothing(config: SlamConfig, blur_px: float = 1.5, radius_px: int = 6) -> SlamConfig:
     """``config`` tracking on residuals blurred by a Gaussian of ``blur_px`` std (px at the config's working width)
-    truncated at ``radius_px`` (``tracking.blur_px``, ``blur_radius_px``): image-space smoothing, the textbook
-    alternative to CB-KNN for a wider basin."""
-    tracking = dataclasses.replace(config.tracking, blur_px=blur_px, blur_radius_px=radius_px)
+    truncated at ``radius_px`` (``tracking.blur.sigma_px``, ``tracking.blur.radius_px``): image-space smoothing, the
+    textbook alternative to CB-KNN for a wider basin."""
+    tracking = dataclasses.replace(config.tracking, blur=ImageBlur(radius_px=radius_px, sigma_px=blur_px))
     return dataclasses.replace(config, tracking=tracking)
 
 
@@ -148,8 +138,8 @@ def with_coarse_to_fine(config: SlamConfig, iters: int = 20, levels: int = 2, si
     finest, doubling per coarser level; px at the working width) first, taken from the strided iterations where
     there are that many, so a frame runs as many iterations as before (each coarse one on every pixel)."""
     cfg = config.tracking
-    tracking = dataclasses.replace(cfg, coarse_iters=iters, coarse_levels=levels, coarse_sigma_px=sigma_px,
-                                   blur_radius_px=max(cfg.blur_radius_px, radius_px),
+    tracking = dataclasses.replace(cfg, coarse=CoarseToFine(iters=iters, levels=levels, sigma_px=sigma_px),
+                                   blur=dataclasses.replace(cfg.blur, radius_px=max(cfg.blur.radius_px, radius_px)),
                                    strided_iters=max(cfg.strided_iters - iters, 0))
     return dataclasses.replace(config, tracking=tracking)
 

@@ -118,15 +118,16 @@ def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
 
 def coarse_losses(problem: TrackingProblem, config: SlamConfig) -> list[Callable]:
     """The losses (delta [6], selection=None -> []) of coarse-to-fine tracking's levels, coarsest first: the tracking
-    objective with the residuals blurred at ``coarse_sigma_px`` x 2^(levels - 1 - level) px; empty without
-    ``coarse_iters``."""
+    objective with the residuals blurred at ``coarse.sigma_px`` x 2^(levels - 1 - level) px; empty without
+    ``coarse.iters``."""
     cfg = config.tracking
-    if not cfg.coarse_iters:
+    if not cfg.coarse.iters:
         return []
     levels = []
-    for level in range(cfg.coarse_levels):
-        sigma = cfg.coarse_sigma_px * 2.0 ** (cfg.coarse_levels - 1 - level)
-        blurred = dataclasses.replace(config, tracking=dataclasses.replace(cfg, blur_px=sigma))
+    for level in range(cfg.coarse.levels):
+        sigma = cfg.coarse.sigma_px * 2.0 ** (cfg.coarse.levels - 1 - level)
+        blurred = dataclasses.replace(config, tracking=dataclasses.replace(
+            cfg, blur=dataclasses.replace(cfg.blur, sigma_px=sigma)))
         levels.append(tracking_objective(problem, blurred).loss)
     return levels
 
@@ -162,7 +163,7 @@ def strided_problem(
 class AdamCarry(NamedTuple):
     """The Adam tracker's loop state: iteration ``it``, the pose update ``delta`` ({rho, phi} [3] each), the
     optimiser's state, the best finite-loss update and its loss, the iteration and loss of the last progress (for
-    ``converge_window``), and the contributor selection in use (None when every render chooses its own)."""
+    ``stop.window``), and the contributor selection in use (None when every render chooses its own)."""
 
     it: jax.Array
     delta: dict
@@ -177,7 +178,7 @@ class AdamCarry(NamedTuple):
 def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coarse=(), select=None) -> TrackResult:
     """Adam on ``loss_fn`` (delta [6], selection -> []) for ``tracking.iters`` iterations, after
     ``tracking.strided_iters`` on ``strided_loss_fn(delta, phase, selection)`` when given (phase = the iteration
-    number mod 4: each of the four strided grids in turn), after ``tracking.coarse_iters`` split over the ``coarse``
+    number mod 4: each of the four strided grids in turn), after ``tracking.coarse.iters`` split over the ``coarse``
     levels' losses (coarsest first). Only full iterations compete for the best pose: strided and blurred losses do
     not compare with them. With ``tracking.reselect_every`` R > 1, ``select(delta)`` chooses the contributor slots
     at iterations 0, R, 2R, ... and the iterations in between composite those (the selection is None with R = 1:
@@ -198,8 +199,8 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
         better = jnp.isfinite(loss) & (loss < carry.best_loss)
         candidate = delta if cfg.best_pose == "pre_step" else new_delta
         best_delta = jax.tree.map(lambda c, b: jnp.where(better, c, b), candidate, carry.best_delta)
-        # Progress: the loss fell by converge_rtol below the loss of the last progress (the first finite loss is).
-        progress = jnp.isfinite(loss) & (loss < carry.progress_loss * (1.0 - cfg.converge_rtol))
+        # Progress: the loss fell by stop.rtol below the loss of the last progress (the first finite loss is).
+        progress = jnp.isfinite(loss) & (loss < carry.progress_loss * (1.0 - cfg.stop.rtol))
         return AdamCarry(it + 1, new_delta, opt_state, best_delta, jnp.where(better, loss, carry.best_loss),
                          jnp.where(progress, it, carry.progress_at), jnp.where(progress, loss, carry.progress_loss),
                          selection)
@@ -219,15 +220,15 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
         # (its trace is the selection's first, which the loop's calls then reuse)
         selection0 = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(select, tangent(delta0)))
     init = AdamCarry(jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf, selection0)
-    for level, level_loss in enumerate(coarse):  # coarse_iters split over the levels, the remainder to the first
-        count = cfg.coarse_iters // len(coarse) + (cfg.coarse_iters % len(coarse) if level == 0 else 0)
+    for level, level_loss in enumerate(coarse):  # coarse.iters split over the levels, the remainder to the first
+        count = cfg.coarse.iters // len(coarse) + (cfg.coarse.iters % len(coarse) if level == 0 else 0)
         init = restart(scan(lambda d, it, sel, f=level_loss: f(d) if sel is None else f(d, sel), init, count))
     if strided_loss_fn is not None and cfg.strided_iters:
         init = restart(scan(lambda d, it, sel: strided_loss_fn(d, it % 4, sel), init, cfg.strided_iters))
     end = init.it + cfg.iters
-    if cfg.converge_window > 0:
+    if cfg.stop.window > 0:
         def running(carry: AdamCarry):
-            return (carry.it < end) & (carry.it - carry.progress_at <= cfg.converge_window)
+            return (carry.it < end) & (carry.it - carry.progress_at <= cfg.stop.window)
 
         final = jax.lax.while_loop(running, lambda carry: iteration(full_loss, carry), init)
     else:
@@ -255,10 +256,11 @@ def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided
     delta0 = jnp.zeros(6, jnp.float32)
     start, strided_steps = delta0, jnp.int32(0)
     if strided is not None and cfg.strided_iters:
-        first = solve((strided[0].view_at, *strided[1:]), delta0, cfg.strided_iters, cfg.blur_px / 2)  # half width
+        sigma_strided = cfg.blur.sigma_px / 2  # the strided grid's pixels are twice as far apart
+        first = solve((strided[0].view_at, *strided[1:]), delta0, cfg.strided_iters, sigma_strided)
         start = jnp.where(jnp.all(jnp.isfinite(first.value)), first.value, delta0)
         strided_steps = jnp.asarray(first.stats["num_steps"], jnp.int32)
-    solution = solve(full, start, cfg.iters, cfg.blur_px)
+    solution = solve(full, start, cfg.iters, cfg.blur.sigma_px)
     delta = solution.value
     start_loss, end_loss = loss_fn(delta0), loss_fn(delta)
     usable = jnp.all(jnp.isfinite(delta)) & jnp.isfinite(end_loss)
@@ -283,16 +285,16 @@ class GuardedTrack(NamedTuple):
 
 def within_step_bound(w2c: jax.Array, w2c_init: jax.Array, tracking: TrackingConfig) -> jax.Array:
     """[] bool: ``w2c`` lies within the physical bound of one frame's motion from ``w2c_init`` (camera centre
-    ``tracking.max_step_m``, rotation ``tracking.max_step_deg``)."""
+    ``tracking.guard.max_step_m``, rotation ``tracking.guard.max_step_deg``)."""
     cfg = tracking
     shift = jnp.linalg.norm(camera_center(w2c) - camera_center(w2c_init))
     turn = rotation_angle(w2c[:3, :3] @ w2c_init[:3, :3].T)
-    return jnp.all(jnp.isfinite(w2c)) & (shift <= cfg.max_step_m) & (turn <= jnp.deg2rad(cfg.max_step_deg))
+    return jnp.all(jnp.isfinite(w2c)) & (shift <= cfg.guard.max_step_m) & (turn <= jnp.deg2rad(cfg.guard.max_step_deg))
 
 
 def _diverged(result: TrackResult, w2c_init, previous_loss, config: SlamConfig) -> jax.Array:
     # A non-finite loss (every iteration skipped) already keeps the start pose; a retry cannot mend the map.
-    jump = (previous_loss > 0) & (result.loss > config.tracking.loss_jump * previous_loss)
+    jump = (previous_loss > 0) & (result.loss > config.tracking.guard.loss_jump * previous_loss)
     return jnp.isfinite(result.loss) & (jump | ~within_step_bound(result.w2c, w2c_init, config.tracking))
 
 
@@ -300,8 +302,8 @@ def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: j
     """:func:`track` from the constant-velocity prediction ``problem.w2c_init``, guarded against divergence.
 
     ``previous_loss`` []: the previous tracked frame's loss (0: none, no loss-jump test). Both attempts are passes
-    of one ``while_loop`` over a single traced tracker (the second with its steps times ``retry_lr_scale``), so the
-    compiled program holds the tracker once and the retry costs nothing when no frame diverges (also under
+    of one ``while_loop`` over a single traced tracker (the second with its steps times ``guard.retry_lr_scale``), so
+    the compiled program holds the tracker once and the retry costs nothing when no frame diverges (also under
     ``vmap``, where a ``cond`` would run both sides).
     """
     cfg = config.tracking
@@ -309,7 +311,7 @@ def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: j
     if cfg.optimizer == "adam":
         def attempt(carry):
             number, first, _ = carry
-            scale = jnp.where(number == 0, 1.0, cfg.retry_lr_scale)
+            scale = jnp.where(number == 0, 1.0, cfg.guard.retry_lr_scale)
             scaled = dataclasses.replace(config, tracking=dataclasses.replace(
                 cfg, lr_trans=cfg.lr_trans * scale, lr_rot=cfg.lr_rot * scale))
             result = track(problem, scaled)

@@ -137,10 +137,10 @@ def test_the_classic_alternatives_are_tracking_variants_of_off():
     blurred, coarse = blur(base).tracking, pyramid(base).tracking
     assert not blur_smooth and not pyramid_smooth
     assert blur(base).cbknn.mode == pyramid(base).cbknn.mode == "off"
-    assert (blurred.blur_radius_px, float(blurred.blur_px), blurred.coarse_iters) == (6, 1.5, 0)
-    assert (coarse.coarse_iters, coarse.coarse_levels, float(coarse.blur_px)) == (20, 2, 0.0)
+    assert (blurred.blur.radius_px, float(blurred.blur.sigma_px), blurred.coarse.iters) == (6, 1.5, 0)
+    assert (coarse.coarse.iters, coarse.coarse.levels, float(coarse.blur.sigma_px)) == (20, 2, 0.0)
     # As many iterations per frame as the preset: the coarse ones replace strided ones.
-    assert coarse.coarse_iters + coarse.strided_iters + coarse.iters == base.tracking.strided_iters + \
+    assert coarse.coarse.iters + coarse.strided_iters + coarse.iters == base.tracking.strided_iters + \
         base.tracking.iters
 
 

@@ -81,7 +81,7 @@ def test_cli_run_writes_plots_renders_a_readable_map_config_and_checkpoints(cli_
         (["--dataset", "synthetic", "--tracking.nope", "1"], r"--tracking\.nope: unknown field 'nope'"),
         (["--dataset", "synthetic", "--tracking.iters", "abc"], r"--tracking\.iters: cannot read 'abc' as int"),
         (["--dataset", "synthetic", "--tracking.iters", "0"], r"tracking\.iters must be an int >= 1"),
-        (["--dataset", "synthetic", "--cbknn.params.alpha", "-1"], r"CBKNN\.alpha must be finite and >= 0"),
+        (["--dataset", "synthetic", "--cbknn.params.alpha", "-1"], r"CBKNN\.alpha must be a finite number >= 0 \(px\)"),
         (["--dataset", "synthetic", "--tracking.iters"], r"--tracking\.iters needs a value"),
         (["--dataset", "synthetic", "--verbose"], r"unrecognised argument '--verbose'"),
         (["--dataset", "synthetic", "--downscale", "7"], r"--downscale 7 must divide the synthetic 160x120 image"),

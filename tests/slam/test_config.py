@@ -78,10 +78,14 @@ def test_overrides_set_nested_fields_by_dotted_name_and_parse_each_type():
         ("tracking.optimizer", "sgd", r"--tracking\.optimizer: .*tracking\.optimizer must be one of"),
         ("tracking.lr_trans", "-1", r"--tracking\.lr_trans: .*tracking\.lr_trans must be a finite number"),
         ("tracking.lr_trans", "nan", r"--tracking\.lr_trans: .*tracking\.lr_trans must be a finite number"),
-        ("tracking.sil_threshold", "1.5", r"--tracking\.sil_threshold: .*must be a finite number >= 0.0 and <= 1.0"),
-        ("densify.init_opacity", "1", r"--densify\.init_opacity: .*init_opacity must be < 1"),
+        ("tracking.sil_threshold", "1.5", r"--tracking\.sil_threshold: .*must be a finite number >= 0 and <= 1, "
+                                          r"got 1\.5"),
+        ("densify.init_opacity", "1", r"--densify\.init_opacity: .*init_opacity must be a finite number > 0 and < 1"),
         ("cbknn.mode", "always", r"--cbknn\.mode: .*cbknn\.mode must be one of"),
-        ("cbknn.params.alpha", "-0.1", r"--cbknn\.params\.alpha: .*CBKNN\.alpha must be finite and >= 0"),
+        ("cbknn.params.alpha", "-0.1", r"--cbknn\.params\.alpha: .*CBKNN\.alpha must be a finite number >= 0 \(px\)"),
+        ("tracking.guard.max_step_m", "0", r"--tracking\.guard\.max_step_m: tracking\.guard\.max_step_m must be a "
+                                           r"finite number > 0 \(m\), got 0\.0"),
+        ("tracking.guard", "1", r"--tracking\.guard: cannot read '1' as DivergenceGuard \(a config section"),
         ("mapping.window_size", "1", r"--mapping\.window_size: .*mapping\.window_size must be an int >= 2"),
     ],
 )
@@ -127,13 +131,13 @@ def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
     traced = {"tracking.lr_trans": "0.01", "tracking.lambda_color": "0.3", "mapping.lr_rgb": "0.01",
               "densify.sil_threshold": "0.4", "cbknn.params.alpha": "0.5", "cbknn.params.k0": "3",
               "cbknn.params.beta": "0.1", "cbknn.lambda_color_keyframe": "0.7", "scene_radius_depth_ratio": "4",
-              "mapping.clamp_rgb": "true", "tracking.blur_px": "1.5", "tracking.coarse_sigma_px": "2",
+              "mapping.clamp_rgb": "true", "tracking.blur.sigma_px": "1.5", "tracking.coarse.sigma_px": "2",
               "noise.persistent_means_cm": "1", "noise.persistent_frame": "5"}
     for name, value in traced.items():
         assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) == structure, name
     static = {"tracking.iters": "5", "tracking.optimizer": "lm", "mapping.window_size": "4", "cbknn.mode": "paper",
               "cbknn.params.k_max": "8", "keyframe_every": "3", "raster.max_contributors": "32",
-              "tracking.blur_radius_px": "4"}
+              "tracking.blur.radius_px": "4"}
     for name, value in static.items():
         assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) != structure, name
 
@@ -146,8 +150,8 @@ def test_a_preset_owns_its_resolution_and_scales_its_pixel_settings():
     full = preset("cpu", 640)  # `gsjax run --preset cpu --downscale 1` on 640x480 input
     assert full.mapping.overlap_margin == 8 * cpu.mapping.overlap_margin == 20.0  # SplaTAM's 20 px at 640
     assert full.cbknn.params.alpha == pytest.approx(8 * cpu.cbknn.params.alpha)
-    assert full.tracking.coarse_sigma_px == 8 * cpu.tracking.coarse_sigma_px  # the smoothing is in pixels too
-    unscaled = dataclasses.replace(full.tracking, coarse_sigma_px=cpu.tracking.coarse_sigma_px)
+    assert full.tracking.coarse.sigma_px == 8 * cpu.tracking.coarse.sigma_px  # the smoothing is in pixels too
+    unscaled = dataclasses.replace(full.tracking, coarse=cpu.tracking.coarse)
     assert config_to_dict(unscaled) == config_to_dict(cpu.tracking)  # nothing else is in pixels
     fraction = dataclasses.replace(cpu, cbknn=dataclasses.replace(
         cpu.cbknn, params=dataclasses.replace(cpu.cbknn.params, shift_mode="fraction")))

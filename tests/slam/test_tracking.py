@@ -14,6 +14,7 @@ from gsjax.camera import se3_exp, se3_log
 from gsjax.config_text import apply_overrides
 from gsjax.raster import render
 from gsjax.raster.render import empty_selection
+from gsjax.slam.config import EarlyStop
 from gsjax.slam.losses import TrackingTerms, exposure_gain, rendered_depth, tracking_loss, tracking_mask
 from gsjax.slam.presets import with_cbknn_mode
 from gsjax.slam.tracking import TrackingProblem, _track_adam, track
@@ -202,9 +203,9 @@ def test_adam_skips_non_finite_iterations_and_keeps_the_best_finite_pose():
     np.testing.assert_allclose(float(result.loss), float(loss_fn(jnp.asarray(best, jnp.float32))), rtol=1e-4)
 
 
-def test_converge_window_stops_once_the_loss_stops_falling_and_zero_runs_every_iteration():
+def test_early_stop_window_stops_once_the_loss_stops_falling_and_zero_runs_every_iteration():
     """Loss |delta - target|^2 with the target 1 cm away: Adam (lr 2 mm) reaches it within ~6 steps, then jitters
-    around it. With converge_window 3 the loop stops 3 iterations after the last drop of 1e-3 (relative), well
+    around it. With stop.window 3 the loop stops 3 iterations after the last drop of 1e-3 (relative), well
     before the cap, at the same best pose; with 0 (SplaTAM) all iterations run."""
     config = map_config()
     target = jnp.asarray([0.01, 0.0, 0.0, 0.0, 0.0, 0.0])
@@ -213,8 +214,8 @@ def test_converge_window_stops_once_the_loss_stops_falling_and_zero_runs_every_i
         return jnp.sum((delta - target) ** 2) + 1e-6
 
     def tracked(window):
-        tracking = dataclasses.replace(config.tracking, iters=60, lr_trans=2e-3, converge_window=window,
-                                       converge_rtol=1e-3)
+        tracking = dataclasses.replace(config.tracking, iters=60, lr_trans=2e-3,
+                                       stop=EarlyStop(window=window, rtol=1e-3))
         run = jax.jit(lambda w: _track_adam(loss_fn, w, dataclasses.replace(config, tracking=tracking)))
         return run(jnp.eye(4, dtype=jnp.float32))
 
@@ -291,9 +292,9 @@ def test_paper_mode_keyframe_tracking_uses_the_smoothed_render_and_the_keyframe_
     assert abs(expected(0.6) - expected(0.5)) > 1e-3 * expected(0.5)  # the weight is visible in the loss
 
 
-def test_match_exposure_takes_a_change_of_brightness_for_what_it_is(rendered_scene):
+def test_exposure_match_takes_a_change_of_brightness_for_what_it_is(rendered_scene):
     """The observation 1.3x brighter in red, 1.2x in green and blue (auto exposure after the map was made): with
-    ``match_exposure`` the colour term at the true pose is the unchanged observation's (zero), and tracking from a
+    ``exposure.match`` the colour term at the true pose is the unchanged observation's (zero), and tracking from a
     perturbation recovers the pose as it does without the change; without it the colour term is not zero."""
     gaussians, color, depth, w2c_true = rendered_scene
     gain = jnp.asarray([1.3, 1.2, 1.2], jnp.float32)
@@ -306,7 +307,7 @@ def test_match_exposure_takes_a_change_of_brightness_for_what_it_is(rendered_sce
     loss = lambda gt, match: float(tracking_loss(view, gt, depth, TrackingTerms(0.5, 1.0, 0.99, False, match)))  # noqa: E731
     assert loss(brighter, True) == pytest.approx(loss(color, False), rel=1e-4)  # the depth term only
     assert loss(brighter, False) > loss(color, False) + 100
-    config = apply_overrides(tracking_config("lm", 10), {"tracking.match_exposure": "true"})
+    config = apply_overrides(tracking_config("lm", 10), {"tracking.exposure.match": "true"})
     delta = jnp.asarray(PERTURBATIONS["a"], jnp.float32)
     problem = TrackingProblem(gaussians, brighter, depth, se3_exp(delta) @ w2c_true, tiny_sequence().intrinsics,
                               False, 0.0)
@@ -387,8 +388,8 @@ def test_coarse_to_fine_runs_its_levels_first_at_halving_blur_and_keeps_a_full_i
     w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["b"], jnp.float32)) @ w2c_true
     intrinsics = tiny_sequence().intrinsics
     config = apply_overrides(tracking_config("adam", 20), {  # each iteration chooses its contributors: exact losses
-        "tracking.blur_radius_px": "4", "tracking.coarse_iters": "31", "tracking.coarse_levels": "3",
-        "tracking.coarse_sigma_px": "0.5", "tracking.reselect_every": "1"})
+        "tracking.blur.radius_px": "4", "tracking.coarse.iters": "31", "tracking.coarse.levels": "3",
+        "tracking.coarse.sigma_px": "0.5", "tracking.reselect_every": "1"})
     problem = TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0)
     levels = coarse_losses(problem, config)
     zero = jnp.zeros(6, jnp.float32)
@@ -403,22 +404,22 @@ def test_coarse_to_fine_runs_its_levels_first_at_halving_blur_and_keeps_a_full_i
     assert int(result.iterations) == 31 + 20
     trans, rot = pose_error(result.w2c, w2c_true)
     assert trans < 0.1 * np.linalg.norm(PERTURBATIONS["b"][:3]) and rot < 0.1 * np.linalg.norm(PERTURBATIONS["b"][3:])
-    full = tracking_objective(problem, config)  # blur_px 0: the reported loss is the unblurred one
+    full = tracking_objective(problem, config)  # blur.sigma_px 0: the reported loss is the unblurred one
     np.testing.assert_allclose(float(result.loss), float(full.loss(se3_log(result.w2c @ jnp.linalg.inv(w2c_init)))),
                                rtol=1e-4)
 
 
 def test_smoothing_settings_are_checked_and_scale_with_the_pixel():
-    from gsjax.slam.config import TrackingConfig
+    from gsjax.slam.config import CoarseToFine, ImageBlur, TrackingConfig
     from gsjax.slam.presets import at_width
 
-    with pytest.raises(ValueError, match="blur_radius_px"):
-        TrackingConfig(coarse_iters=10)
+    with pytest.raises(ValueError, match="blur.radius_px"):
+        TrackingConfig(coarse=CoarseToFine(iters=10))
     with pytest.raises(ValueError, match="adam only"):
-        TrackingConfig(coarse_iters=10, blur_radius_px=4, optimizer="lm")
-    with pytest.raises(ValueError, match="tracking.blur_px"):
-        TrackingConfig(blur_px=-1.0)
-    config = apply_overrides(map_config(), {"tracking.blur_px": "2", "tracking.coarse_sigma_px": "1",
-                                            "tracking.blur_radius_px": "6"})
+        TrackingConfig(coarse=CoarseToFine(iters=10), blur=ImageBlur(radius_px=4), optimizer="lm")
+    with pytest.raises(ValueError, match="tracking.blur.sigma_px"):
+        ImageBlur(sigma_px=-1.0)
+    config = apply_overrides(map_config(), {"tracking.blur.sigma_px": "2", "tracking.coarse.sigma_px": "1",
+                                            "tracking.blur.radius_px": "6"})
     half = at_width(config, 40, 80).tracking
-    assert (float(half.blur_px), float(half.coarse_sigma_px), half.blur_radius_px) == (1.0, 0.5, 6)
+    assert (float(half.blur.sigma_px), float(half.coarse.sigma_px), half.blur.radius_px) == (1.0, 0.5, 6)

@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 from gsjax.app.cli import (
     bench,
+    config,
     evaluate,
     landscape,
     report,
@@ -23,9 +25,9 @@ from gsjax.app.cli import (
     synth,
     view,
 )
-from gsjax.app.cli.common import Parser, UserError, parse_overrides
+from gsjax.app.cli.common import Parser, UserError, parse_overrides, show_warning
 
-COMMANDS = (run, sweep, landscape, report, view, bench, evaluate, synth)
+COMMANDS = (run, sweep, landscape, report, view, bench, evaluate, synth, config)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -50,8 +52,10 @@ def main(argv: list[str] | None = None) -> int:
     enable_compilation_cache()
     limit_malloc_arenas()
     try:
-        args.overrides = parse_overrides(extra)
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            warnings.showwarning = show_warning
+            args.overrides = parse_overrides(extra)
+            return int(args.func(args) or 0)
     except (UserError, ValueError, OSError) as err:  # DatasetError and RunDirError are ValueErrors
         if args.debug:
             raise

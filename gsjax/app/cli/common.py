@@ -44,6 +44,18 @@ def dataset_warnings(open_fn):
     return result, messages
 
 
+_PYTHON_SHOWWARNING = warnings.showwarning
+
+
+def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` for the command line: a FutureWarning (an old config name, ...) as one ``warning:``
+    line, the rest as Python shows them."""
+    if issubclass(category, FutureWarning):
+        print(f"warning: {message}", file=sys.stderr, flush=True)
+    else:
+        _PYTHON_SHOWWARNING(message, category, filename, lineno, file, line)
+
+
 # Options every subcommand takes.
 COMMON = argparse.ArgumentParser(add_help=False)
 COMMON.add_argument("--debug", action="store_true", help="show the full traceback of an error")

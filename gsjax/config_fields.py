@@ -1,0 +1,252 @@
+"""Config fields declared once: each field's unit, whether it is static (a shape, a mode, a flag: part of the
+compiled program) or traced (a value users sweep), its bounds and how it follows the image width, as dataclass
+field metadata (:func:`param`). The configs' validation (:func:`check_fields`), :func:`gsjax.slam.presets.at_width`,
+the command line's overrides and their messages, and the generated config reference (``gsjax config
+--reference``) all read them from here; a field's meaning is its entry in its class's ``Attributes:`` docstring
+(:func:`field_docs`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from collections.abc import Iterator, Mapping
+from typing import Any, TypeVar
+
+import numpy as np
+
+from gsjax.checks import is_checkable
+
+_T = TypeVar("_T")
+
+# How a field follows the image width (gsjax.slam.presets.at_width): "width" scales with it (a length in pixels),
+# "footprint" inversely (a bound measured in pixel footprints, e.g. pruning's size bound), None stays.
+SCALINGS = ("width", "footprint", None)
+
+
+@dataclasses.dataclass(frozen=True)
+class FieldSpec:
+    """One config field's declaration (read from ``dataclasses.Field.metadata["spec"]``).
+
+    Attributes:
+      unit: what the value measures: ``px``, ``px^2``, ``m``, ``cm``, ``deg``, ``rad``, ``count``, ``weight``,
+        ``ratio``, ``flag``, ``choice``, ... (shown in messages and the reference).
+      static: part of the compiled program's structure (shapes, modes, flags); traced fields are pytree leaves that
+        ``jax.vmap`` sweeps without recompiling.
+      low, high: bounds (None: unbounded); low_open, high_open: whether the bound itself is excluded.
+      choices: the allowed values of a mode.
+      scaling: how the value follows the image width (:data:`SCALINGS`).
+      unit_by: (sibling field, {its value: unit}): the unit depends on a mode (CB-KNN's alpha is px or a fraction).
+    """
+
+    unit: str
+    static: bool = False
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple | None = None
+    scaling: str | None = None
+    unit_by: tuple[str, Mapping[str, str]] | None = None
+
+    def unit_of(self, owner: Any) -> str:
+        """The field's unit in ``owner`` (resolving :attr:`unit_by`)."""
+        if self.unit_by is None:
+            return self.unit
+        sibling, units = self.unit_by
+        return units[getattr(owner, sibling)]
+
+    def scaled(self, value: Any, owner: Any, ratio: float) -> Any:
+        """``value`` for a width ``ratio`` (new / given) times the one it is given for (:attr:`scaling`)."""
+        if self.scaling == "width" and self.unit_of(owner) == "px":
+            return value * ratio
+        if self.scaling == "footprint":
+            return value / ratio
+        return value
+
+    def bounds_text(self) -> str:
+        """The bounds as text, e.g. ``>= 0 and <= 1`` ('' when unbounded)."""
+        parts = []
+        if self.low is not None:
+            parts.append(f"{'>' if self.low_open else '>='} {_number(self.low)}")
+        if self.high is not None:
+            parts.append(f"{'<' if self.high_open else '<='} {_number(self.high)}")
+        return " and ".join(parts)
+
+    def describe(self, kind: str) -> str:
+        """What a valid value is, in words (the messages' ``must be ...``), for a field of type ``kind``."""
+        if self.choices is not None:
+            return f"one of {', '.join(map(str, self.choices))}"
+        if kind == "bool":
+            return "true or false"
+        bounds = self.bounds_text()
+        what = {"int": "an int", "tuple": "a tuple of ints"}.get(kind, "a finite number")
+        unit = f" ({self.unit})" if self.unit not in ("count", "ratio", "weight", "flag", "choice") else ""
+        return f"{what}{' ' + bounds if bounds else ''}{unit}"
+
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else repr(value)
+
+
+def param(default: _T, unit: str, *, static: bool = False, low: float | None = None, high: float | None = None,
+          low_open: bool = False, high_open: bool = False, choices: tuple | None = None, scaling: str | None = "auto",
+          unit_by: tuple[str, Mapping[str, str]] | None = None) -> _T:
+    """A config field with its declaration (:class:`FieldSpec`). ``scaling`` ``"auto"``: a traced field in ``px``
+    scales with the width (a static one in px is a shape and stays); ``static=True`` makes it part of the treedef
+    (``jax.tree_util.register_dataclass`` reads the same metadata)."""
+    if scaling == "auto":
+        px = unit == "px" or (unit_by is not None and "px" in unit_by[1].values())
+        scaling = "width" if px and not static else None
+    if scaling not in SCALINGS:
+        raise ValueError(f"scaling must be one of {SCALINGS}, got {scaling!r}")
+    spec = FieldSpec(unit, static, low, high, low_open, high_open, choices, scaling, unit_by)
+    return dataclasses.field(default=default, metadata=dict(static=static, spec=spec))
+
+
+def spec_of(field: dataclasses.Field) -> FieldSpec | None:
+    """The declaration of ``field``; None for a nested config (a section)."""
+    return field.metadata.get("spec")
+
+
+def kind_of(field: dataclasses.Field) -> str:
+    """The field's value type as declared: ``int``, ``float``, ``bool``, ``str``, ``tuple`` or a section's class."""
+    kind = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", str(field.type))
+    return kind.split("[")[0]
+
+
+def check_fields(config: Any, owner: str) -> None:
+    """Check every declared field of ``config`` against its :class:`FieldSpec`; ValueError naming ``owner.field``.
+
+    Traced values are checked when they are concrete (numbers or arrays, elementwise); under ``jit``/``vmap`` they
+    are tracers or placeholders and were checked when built."""
+    for field in dataclasses.fields(config):
+        spec = spec_of(field)
+        if spec is not None:
+            check_value(f"{owner}.{field.name}", getattr(config, field.name), spec, kind_of(field))
+
+
+def check_value(name: str, value: Any, spec: FieldSpec, kind: str) -> None:
+    """Check one value of a field of type ``kind`` against ``spec``; ValueError ``name must be ..., got ...``."""
+    if not _valid(value, spec, kind):
+        raise ValueError(f"{name} must be {spec.describe(kind)}, got {value!r}")
+
+
+def _valid(value: Any, spec: FieldSpec, kind: str) -> bool:
+    if spec.choices is not None:
+        return isinstance(value, str) and value in spec.choices
+    if kind == "tuple":
+        return isinstance(value, tuple) and all(_is_int(v) and _within(float(v), spec) for v in value)
+    if spec.static or isinstance(value, (bool, int, float, str)):
+        if kind == "bool":
+            return isinstance(value, (bool, np.bool_))
+        if kind == "int" and not _is_int(value):
+            return False
+        if kind == "str":
+            return isinstance(value, str)
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            return False
+        return math.isfinite(float(value)) and _within(float(value), spec)
+    if not is_checkable(value):
+        return True  # traced, or a placeholder JAX puts in a pytree (e.g. vmap's in_axes): checked when built
+    array = np.asarray(value)
+    if kind == "bool":
+        return array.dtype == np.bool_
+    if array.dtype == np.bool_ or not np.issubdtype(array.dtype, np.number):
+        return False
+    v = array.astype(np.float64)
+    if kind == "int" and np.any(v % 1):
+        return False
+    return bool(np.isfinite(v).all()) and _within(v, spec)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _within(v, spec: FieldSpec) -> bool:
+    ok = True
+    if spec.low is not None:
+        ok = ok and bool(np.all(v > spec.low if spec.low_open else v >= spec.low))
+    if spec.high is not None:
+        ok = ok and bool(np.all(v < spec.high if spec.high_open else v <= spec.high))
+    return ok
+
+
+@dataclasses.dataclass(frozen=True)
+class FieldEntry:
+    """One leaf field of a config tree, as :func:`walk` yields it: its dotted ``path``, the ``owner`` instance that
+    holds it, its ``field`` and ``spec``."""
+
+    path: str
+    owner: Any
+    field: dataclasses.Field
+    spec: FieldSpec | None
+
+    @property
+    def value(self) -> Any:
+        return getattr(self.owner, self.field.name)
+
+
+def walk(config: Any, prefix: str = "") -> Iterator[FieldEntry]:
+    """Every leaf field of a nested config, depth first in declaration order (sections are descended into)."""
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        path = f"{prefix}{field.name}"
+        if dataclasses.is_dataclass(value) and spec_of(field) is None:
+            yield from walk(value, path + ".")
+        else:
+            yield FieldEntry(path, config, field, spec_of(field))
+
+
+def rescale(config: _T, ratio: float) -> _T:
+    """``config`` with every field that follows the width (:attr:`FieldSpec.scaling`) scaled for a width ``ratio``
+    times the one its values are given for; the same object when ``ratio`` is 1."""
+    if ratio == 1:
+        return config
+    changes: dict[str, Any] = {}
+    for field in dataclasses.fields(config):  # type: ignore[arg-type]
+        value = getattr(config, field.name)
+        spec = spec_of(field)
+        if spec is None and dataclasses.is_dataclass(value):
+            scaled = rescale(value, ratio)
+            if scaled is not value:
+                changes[field.name] = scaled
+        elif spec is not None and spec.scaled(1.0, config, ratio) != 1.0:
+            changes[field.name] = spec.scaled(value, config, ratio)
+    return dataclasses.replace(config, **changes) if changes else config  # type: ignore[type-var]
+
+
+_ENTRY = re.compile(r"^(\s+)([A-Za-z_][\w]*(?:,\s*[A-Za-z_]\w*)*):\s?(.*)$")
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's meaning from the ``Attributes:`` section of ``cls``'s docstring (Google style: ``name: text``,
+    or ``a, b: text`` for fields documented together; continuation lines indented deeper)."""
+    lines = (cls.__doc__ or "").splitlines()
+    try:
+        start = next(i for i, line in enumerate(lines) if line.strip() == "Attributes:")
+    except StopIteration:
+        return {}
+    docs: dict[str, str] = {}
+    names: list[str] = []
+    indent = None
+    for line in lines[start + 1:]:
+        if not line.strip():
+            if names:
+                continue
+            break
+        match = _ENTRY.match(line)
+        depth = len(line) - len(line.lstrip())
+        if match and (indent is None or depth == indent):
+            indent = depth
+            names = [n.strip() for n in match.group(2).split(",")]
+            for n in names:
+                docs[n] = match.group(3).strip()
+        elif indent is not None and depth > indent and names:
+            for n in names:
+                docs[n] += " " + line.strip()
+        else:
+            break
+    return docs
