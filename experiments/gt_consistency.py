@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.camera import backproject
+from gsjax.camera import backproject, invert_transform
 from gsjax.data import open_sequence
 from gsjax.report.figures import Series, series_png
 from gsjax.report.run_record import read_run
@@ -72,7 +72,7 @@ def consistency(sequence, trajectories: dict[str, np.ndarray], gaps: list[int], 
     for gap in gaps:
         starts = np.unique(np.linspace(0, len(sequence) - 1 - gap, pairs).round().astype(int))
         for name, c2w in trajectories.items():
-            errors = [pair_errors(*frame(i), *frame(i + gap), np.linalg.inv(c2w[i + gap]) @ c2w[i],
+            errors = [pair_errors(*frame(i), *frame(i + gap), invert_transform(c2w[i + gap]) @ c2w[i],
                                   sequence.intrinsics, step) for i in starts]
             depth_mm, grey = np.mean(errors, axis=0)
             rows.append(dict(trajectory=name, gap=gap, pairs=len(starts), depth_median_mm=float(depth_mm),

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.app.compilation_cache import enable_compilation_cache
+from gsjax.camera import invert_transform
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.eval.image import render_metrics_splatam
 from gsjax.io.atomic import atomic_write_json
@@ -45,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     sequence = synthetic_sequence(SyntheticConfig(width=base.width // args.downscale,
                                                   height=base.height // args.downscale, num_frames=args.frames))
     config = preset("cpu", sequence.intrinsics.width)
-    w2c = np.linalg.inv(sequence.gt_trajectory()[1]).astype(np.float32)
+    w2c = invert_transform(sequence.gt_trajectory()[1]).astype(np.float32)
     t0 = time.perf_counter()
     result = driver.run(sequence, config, sequence.intrinsics, poses=w2c)
     seconds = time.perf_counter() - t0

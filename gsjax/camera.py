@@ -17,11 +17,12 @@ angles use Taylor series (with the double-``where`` trick so that gradients stay
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from gsjax.config_fields import check_fields, required
 
 # Below this squared rotation angle (rad^2) the closed forms lose float32 precision; use Taylor series instead.
 _SMALL_ANGLE_SQ = 0.04
@@ -38,12 +39,20 @@ class Intrinsics:
       height, width: image size (px).
     """
 
-    fx: jax.Array
-    fy: jax.Array
-    cx: jax.Array
-    cy: jax.Array
-    height: int = dataclasses.field(metadata=dict(static=True))
-    width: int = dataclasses.field(metadata=dict(static=True))
+    fx: jax.Array | float = required("px", low=0.0, low_open=True, scaling=None)
+    fy: jax.Array | float = required("px", low=0.0, low_open=True, scaling=None)
+    cx: jax.Array | float = required("px", scaling=None)
+    cy: jax.Array | float = required("px", scaling=None)
+    height: int = required("px", static=True, low=1)
+    width: int = required("px", static=True, low=1)
+
+    def check(self) -> None:
+        """ValueError naming the first field that is not a valid camera (values are checked when concrete: not
+        under a trace; the image size always, it is static)."""
+        for name in ("fx", "fy", "cx", "cy"):
+            if np.ndim(getattr(self, name)) != 0:
+                raise ValueError(f"intrinsics.{name} must be a scalar, got shape {list(np.shape(getattr(self, name)))}")
+        check_fields(self, "intrinsics")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -100,16 +109,12 @@ class Intrinsics:
 
 
 def make_intrinsics(fx: float, fy: float, cx: float, cy: float, height: int, width: int) -> Intrinsics:
-    """Intrinsics with float32 scalar arrays, after checking the values (ValueError naming the bad one)."""
-    for name, value in (("fx", fx), ("fy", fy)):
-        if not (math.isfinite(float(value)) and float(value) > 0):
-            raise ValueError(f"intrinsics.{name} must be a positive finite number, got {value!r}")
-    for name, value in (("cx", cx), ("cy", cy)):
-        if not math.isfinite(float(value)):
-            raise ValueError(f"intrinsics.{name} must be finite, got {value!r}")
-    for name, value in (("height", height), ("width", width)):
-        if int(value) != value or int(value) <= 0:
-            raise ValueError(f"intrinsics.{name} must be a positive int, got {value!r}")
+    """Intrinsics with float32 scalar arrays, after checking the values (ValueError naming the bad one); a whole
+    number given as a float (640.0) is a valid size."""
+    def whole(value):
+        return int(value) if isinstance(value, (float, np.floating)) and float(value).is_integer() else value
+
+    Intrinsics(fx, fy, cx, cy, whole(height), whole(width)).check()
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return Intrinsics(f32(fx), f32(fy), f32(cx), f32(cy), int(height), int(width))
 
@@ -293,6 +298,14 @@ def invert_rigid(transform: np.ndarray) -> np.ndarray:
     out[..., :3, 3] = -(rot_t @ transform[..., :3, 3, None])[..., 0]
     out[..., 3, 3] = 1.0
     return out
+
+
+def invert_transform(transform: np.ndarray) -> np.ndarray:
+    """Exact inverse of invertible transforms [..., 4, 4] (float64), for poses that are rigid only to rounding: a
+    float32 pose from the core, a ground-truth matrix read from a file. Files written from a pose (``trajectory.txt``)
+    keep the digits of its exact inverse; :func:`invert_rigid` (``R^T``) is the inverse of the nearest rigid
+    transform, equal to this to within the pose's own orthonormality error (about 1e-7 for float32)."""
+    return np.linalg.inv(np.asarray(transform, np.float64))
 
 
 def rotation_angle_rad(rotation: np.ndarray) -> np.ndarray:

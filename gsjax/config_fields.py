@@ -105,6 +105,11 @@ def param(default: _T, unit: str, *, static: bool = False, low: float | None = N
     return dataclasses.field(default=default, metadata=dict(static=static, spec=spec))
 
 
+def required(unit: str, **declaration: Any) -> Any:
+    """A field without a default (e.g. a camera's focal length), declared as :func:`param` declares one."""
+    return param(dataclasses.MISSING, unit, **declaration)
+
+
 def spec_of(field: dataclasses.Field) -> FieldSpec | None:
     """The declaration of ``field``; None for a nested config (a section)."""
     return field.metadata.get("spec")

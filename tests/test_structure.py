@@ -61,3 +61,11 @@ def test_the_core_never_imports_the_shell():
 def test_no_module_is_over_400_lines():
     long = {name: n for name, path in modules().items() if (n := len(path.read_text().splitlines())) > 400}
     assert not long, long
+
+
+def test_poses_are_inverted_through_gsjax_camera():
+    """No matrix inverse of a pose outside ``gsjax.camera`` (``invert_transform``, ``invert_rigid``, ``se3_inverse``
+    say which inverse is meant)."""
+    offenders = [name for name, path in modules().items()
+                 if name != "gsjax.camera" and "linalg.inv(" in path.read_text()]
+    assert not offenders, offenders

@@ -35,7 +35,7 @@ import numpy as np
 
 from gsjax.app.compilation_cache import exported_call
 from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
-from gsjax.camera import se3_log
+from gsjax.camera import invert_transform, se3_inverse, se3_log
 from gsjax.config_text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
@@ -123,7 +123,7 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     frames = [sequence.read_host(i) for i in range(t + 1)]
     relative_gt = None
     if gt_valid[0] and gt_valid[t]:
-        relative_gt = np.linalg.inv(np.linalg.inv(gt_c2w[0]) @ gt_c2w[: t + 1])  # w2c, world = the first camera
+        relative_gt = invert_transform(invert_transform(gt_c2w[0]) @ gt_c2w[: t + 1])  # w2c, world = the first camera
     t0 = time.perf_counter()
     poses = relative_gt[:t].astype(np.float32) if options.map_from == "gt" else None
     how = "at their ground-truth poses" if poses is not None else "SLAM"
@@ -230,6 +230,6 @@ def _fixed_point(w2c: np.ndarray, w2c_ref: jax.Array) -> dict:
     """The fixed point's w2c, its distance from the reference (cm, deg) and its offset along every axis (the
     residual left perturbation's tangent in the axes' units)."""
     error_cm, error_deg = pure.pose_error(jnp.asarray(w2c), w2c_ref)
-    tangent = np.asarray(se3_log(jnp.asarray(w2c) @ jnp.linalg.inv(w2c_ref)), np.float64)
+    tangent = np.asarray(se3_log(jnp.asarray(w2c) @ se3_inverse(w2c_ref)), np.float64)
     return dict(w2c=_floats(w2c), error_cm=float(error_cm), error_deg=float(error_deg),
                 offsets={name: float(tangent[component] / scale) for name, (component, _, scale) in pure.AXES.items()})

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.app.run_warnings import run_warnings
+from gsjax.camera import invert_transform
 from gsjax.config_text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.eval.image import render_metrics_splatam
@@ -84,7 +85,7 @@ def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOption
     out = Path(options.out)
     t0 = time.perf_counter()
     timestamps, gt_c2w, gt_valid = sequence.gt_trajectory()
-    est_c2w = np.linalg.inv(np.asarray(outputs["w2c"], np.float64))
+    est_c2w = invert_transform(outputs["w2c"])
     # Express the estimate in the dataset's world frame when frame 0 has ground truth (so its numbers can be
     # compared with the dataset's files directly); the SLAM world frame is the first camera.
     anchor = gt_c2w[0] if gt_valid[0] else np.eye(4)

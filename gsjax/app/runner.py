@@ -33,6 +33,7 @@ from gsjax.app.progress import Progress
 from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.run_outputs import OutputOptions, finish_run, is_evaluation_frame, run_record
 from gsjax.app.run_warnings import run_warnings
+from gsjax.camera import invert_transform
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.eval.trajectory import ate_so_far
@@ -212,7 +213,7 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
                 timings["checkpoint_s"] += seconds
                 ledger.checkpoints.add(seconds, written)
             w2c = np.asarray(outputs["w2c"], np.float64)
-            ate = ate_so_far(np.linalg.inv(w2c), gt_c2w, gt_valid)
+            ate = ate_so_far(invert_transform(w2c), gt_c2w, gt_valid)
             fields = dict(loss=f"{outputs['tracking_loss'][-1]:.1f}", gaussians=outputs["num_gaussians"][-1],
                           fps=f"{done / max(timings['slam_s'], 1e-9):.2f}")
             if ate is not None:

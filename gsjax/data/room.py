@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.camera import Intrinsics, make_intrinsics
+from gsjax.camera import Intrinsics, invert_transform, make_intrinsics
 from gsjax.data.synthetic import camera_trajectory, render_view
 from gsjax.gaussians import Gaussians, gaussians_from_rgbd
 
@@ -86,7 +86,7 @@ def dense_surface_map(height: int, width: int, variant: str = "mapped",
                       seed: int = 0) -> tuple[Gaussians, jax.Array, Intrinsics]:
     """(gaussians, w2c, intrinsics) of a SplaTAM-density map of the analytic room and the view it is seen from."""
     intrinsics = room_intrinsics(height, width)
-    w2c = jnp.asarray(np.linalg.inv(_viewpoint()), jnp.float32)
+    w2c = jnp.asarray(invert_transform(_viewpoint()), jnp.float32)
     rng = np.random.default_rng(seed)
     if variant == "fresh":
         maps = [_layer(intrinsics, 0.0, 0.5, rng)]
@@ -106,7 +106,7 @@ def dense_surface_map(height: int, width: int, variant: str = "mapped",
         maps = [first, Gaussians(second.means, second.log_scales, second.logit_opacities, second.rgb, keep)]
     elif variant == "receding":
         gaussians, _, intrinsics = dense_surface_map(height, width, "mapped", seed)
-        back = np.linalg.inv(_viewpoint() @ _translation(0.0, 0.0, -0.5))
+        back = invert_transform(_viewpoint() @ _translation(0.0, 0.0, -0.5))
         return gaussians, jnp.asarray(back, jnp.float32), intrinsics
     elif variant == "layered":
 

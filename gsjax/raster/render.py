@@ -6,7 +6,6 @@ Semantics: SplaTAM's rasterizer (method_spec A.3) with DESIGN 2.2.1's convention
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import NamedTuple
 
 import jax
@@ -71,10 +70,7 @@ def check_render_inputs(gaussians: Gaussians, w2c: jax.typing.ArrayLike, intrins
     check_gaussians(gaussians)
     if not isinstance(intrinsics, Intrinsics):
         raise ValueError(f"intrinsics must be a gsjax.camera.Intrinsics, got {type(intrinsics).__name__}")
-    for name in ("height", "width"):
-        value = getattr(intrinsics, name)
-        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value <= 0:
-            raise ValueError(f"intrinsics.{name} must be a positive int, got {value!r}")
+    intrinsics.check()
     if not isinstance(settings, RasterSettings):
         raise ValueError(f"settings must be a gsjax.raster.RasterSettings, got {type(settings).__name__}")
     w2c_shape = tuple(np.shape(w2c))
@@ -100,15 +96,6 @@ def check_render_inputs(gaussians: Gaussians, w2c: jax.typing.ArrayLike, intrins
         raise ValueError(f"motion must be a scalar in [0, 1], got shape {list(np.shape(motion))}")
     if is_checkable(motion) and not (0.0 <= float(np.asarray(motion)) <= 1.0):
         raise ValueError(f"motion must lie in [0, 1], got {float(np.asarray(motion))!r}")
-    for name in ("fx", "fy", "cx", "cy"):
-        value = getattr(intrinsics, name)
-        if np.ndim(value) != 0:
-            raise ValueError(f"intrinsics.{name} must be a scalar, got shape {list(np.shape(value))}")
-        if is_checkable(value):
-            v = float(np.asarray(value))
-            if not math.isfinite(v) or (name in ("fx", "fy") and v <= 0):
-                kind = "a positive finite number" if name in ("fx", "fy") else "finite"
-                raise ValueError(f"intrinsics.{name} must be {kind}, got {v!r}")
 
 
 def render(

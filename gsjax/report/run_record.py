@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gsjax.camera import invert_transform
 from gsjax.eval.association import associate_timestamps
 from gsjax.eval.run_input import RunInput
 from gsjax.eval.run_metrics import RunMetrics
@@ -59,7 +60,7 @@ class RunRecord:
 
     def map_c2w(self) -> np.ndarray:
         """[T, 4, 4] the estimated camera-to-world poses in the map's frame (what renders the map at each frame)."""
-        return np.linalg.inv(self.world_from_map) @ self.est_c2w
+        return invert_transform(self.world_from_map) @ self.est_c2w
 
     def ground_truth_in_map(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(estimate rows [n] int, the GT camera-to-world [n, 4, 4] associated with them by timestamp, in the map's

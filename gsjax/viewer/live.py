@@ -7,6 +7,7 @@ import time
 import jax
 import numpy as np
 
+from gsjax.camera import invert_transform
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.eval.trajectory import ate_so_far, ground_truth_on_estimate
@@ -48,7 +49,7 @@ class LiveViewer:
         t0 = time.perf_counter()
         gaussians = jax.tree_util.tree_map(np.array, jax.device_get(state.gaussians))  # host copies
         self._renderer.set_map(gaussians)
-        c2w = np.linalg.inv(np.asarray(outputs["w2c"], np.float64))
+        c2w = invert_transform(outputs["w2c"])
         count = int(state.keyframes.count)
         keyframes = np.asarray(state.keyframes.frame)[:count].astype(int)
         known = self._images.known()

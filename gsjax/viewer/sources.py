@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.camera import Intrinsics
+from gsjax.camera import Intrinsics, invert_transform
 from gsjax.gaussians import Gaussians
 from gsjax.io.images import to_uint8
 from gsjax.raster import RasterSettings, render
@@ -36,7 +36,7 @@ class MapRenderer:
             gaussians = self._gaussians
         if gaussians is None:
             return None
-        w2c = jnp.asarray(np.linalg.inv(np.asarray(c2w, np.float64)), jnp.float32)
+        w2c = jnp.asarray(invert_transform(c2w), jnp.float32)
         return to_uint8(np.asarray(self._render(gaussians, w2c)))
 
 

@@ -12,7 +12,7 @@ import pytest
 from evo.core import sync
 from evo.core.trajectory import PoseTrajectory3D
 
-from gsjax.camera import invert_rigid, quaternion_wxyz_to_rotation, rotation_angle_rad
+from gsjax.camera import invert_rigid, invert_transform, quaternion_wxyz_to_rotation, rotation_angle_rad
 from gsjax.eval.association import associate_timestamps
 from gsjax.eval.trajectory import (
     Alignment,
@@ -346,6 +346,18 @@ def test_invert_rigid_is_the_matrix_inverse():
     rng = np.random.default_rng(14)
     poses = np.stack([pose(random_rotation(rng), rng.standard_normal(3)) for _ in range(5)])
     np.testing.assert_allclose(invert_rigid(poses) @ poses, np.broadcast_to(np.eye(4), (5, 4, 4)), atol=1e-12)
+
+
+def test_invert_transform_is_exact_where_invert_rigid_assumes_orthonormality():
+    """A float32 pose is rigid only to rounding: invert_transform inverts the matrix itself (what the files keep),
+    invert_rigid the nearest rigid transform; the two agree to the pose's orthonormality error."""
+    rng = np.random.default_rng(15)
+    poses = np.stack([pose(random_rotation(rng), rng.standard_normal(3)) for _ in range(5)]).astype(np.float32)
+    exact = invert_transform(poses)
+    assert exact.dtype == np.float64
+    np.testing.assert_allclose(exact @ poses.astype(np.float64), np.broadcast_to(np.eye(4), (5, 4, 4)), atol=1e-12)
+    np.testing.assert_allclose(invert_rigid(poses), exact, atol=1e-5)
+    assert np.abs(invert_rigid(poses) - exact).max() > 0  # not the same function
 
 
 def test_evaluate_trajectory_per_frame_errors_are_the_ones_behind_the_statistics():
