@@ -7,9 +7,9 @@ for PSNR / MS-SSIM / SSIM / depth L1 (and CB-KNN's K and rho maps when CB-KNN sm
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -31,6 +31,7 @@ from gsjax.io.trajectory import write_tum_trajectory
 from gsjax.raster import render
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import SlamState
+from gsjax.slam.system import StepOutputs
 
 if TYPE_CHECKING:
     from gsjax.app.checkpoints import CheckpointLedger
@@ -57,7 +58,7 @@ def run_record(sequence: Sequence, config: SlamConfig, *, chunk: int, seed: int,
                     height=k.height, chunk=chunk, seed=seed, camera=camera, config=config_to_dict(config), sweep=sweep)
 
 
-def finish_run(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: dict,
+def finish_run(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: StepOutputs,
                timings: dict, record: RunInput, *, input_warnings: Iterable[str] = (),
                resume_warnings: Iterable[str] = (), checkpoints: CheckpointLedger | None = None,
                frames: dict | None = None) -> RunMetrics:
@@ -65,7 +66,8 @@ def finish_run(sequence: Sequence, config: SlamConfig, options: OutputOptions, s
     sweep``: evaluate it and write ``trajectory.txt``, ``groundtruth.txt`` (when the sequence has ground truth),
     ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and ``metrics.json`` into ``options.out``.
 
-    ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` as lists; ``timings``: stage times (s);
+    ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` on the host ([T, ...] numpy arrays,
+    :func:`host_outputs`); ``timings``: stage times (s);
     ``record``: what ``config.json`` holds; ``metrics.json``'s warnings are ``input_warnings`` (what opening the
     sequence reported), the run's own (:func:`gsjax.app.run_warnings.run_warnings` of ``outputs``) and
     ``resume_warnings``; ``checkpoints``: the checkpoints the run wrote; ``frames``: host frames the run still
@@ -78,14 +80,15 @@ def finish_run(sequence: Sequence, config: SlamConfig, options: OutputOptions, s
     return _write_outputs(sequence, config, options, state, outputs, timings, record, warnings, checkpoints, read)
 
 
-def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState, outputs: dict,
+def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOptions, state: SlamState,
+                   outputs: StepOutputs,
                    timings: dict, record: RunInput, warnings: list[str], checkpoints: CheckpointLedger | None,
                    read) -> RunMetrics:
     """:func:`finish_run` once the warnings are worded; ``read(t)``: frame ``t`` on the host."""
     out = Path(options.out)
     t0 = time.perf_counter()
     timestamps, gt_c2w, gt_valid = sequence.gt_trajectory()
-    est_c2w = invert_transform(outputs["w2c"])
+    est_c2w = invert_transform(outputs.w2c)
     # Express the estimate in the dataset's world frame when frame 0 has ground truth (so its numbers can be
     # compared with the dataset's files directly); the SLAM world frame is the first camera.
     anchor = gt_c2w[0] if gt_valid[0] else np.eye(4)
@@ -129,20 +132,19 @@ def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOption
         keyframes=int(state.keyframes.count),
         nonfinite_tracking_iterations=int(state.nonfinite_tracking),
         nonfinite_mapping_iterations=int(state.nonfinite_mapping),
-        frames_with_truncated_render=int(np.sum(outputs["truncated"])),
-        max_truncation_residual=float(np.max(outputs["truncation_residual"])),
-        skipped_frames=[int(t) for t in np.flatnonzero(outputs["skipped"])],
-        retried_frames=[int(t) for t in np.flatnonzero(outputs["retried"])],
-        diverged_frames=[int(t) for t in np.flatnonzero(outputs["diverged"])],
+        frames_with_truncated_render=int(np.sum(outputs.truncated)),
+        max_truncation_residual=float(np.max(outputs.truncation_residual)),
+        skipped_frames=[int(t) for t in np.flatnonzero(outputs.skipped)],
+        retried_frames=[int(t) for t in np.flatnonzero(outputs.retried)],
+        diverged_frames=[int(t) for t in np.flatnonzero(outputs.diverged)],
         nonfinite_gaussians=int(state.nonfinite_gaussians),
         checkpoints=checkpoints.summary() if checkpoints is not None else None,
         warnings=list(warnings),
         camera=record.camera,
         config=record.config,
         world_from_map=np.asarray(anchor, np.float64).tolist(),
-        keyframe_frames=[int(t) for t in np.flatnonzero(outputs["keyframe"])],
-        # (a run resumed from a checkpoint of an older gsjax may lack a series)
-        per_frame={name: [_json_number(v) for v in outputs[name]] for name in PER_FRAME if name in outputs},
+        keyframe_frames=[int(t) for t in np.flatnonzero(outputs.keyframe)],
+        per_frame={name: [_json_number(v) for v in getattr(outputs, name)] for name in PER_FRAME},
     )
     from gsjax.report import write_report
 
@@ -151,6 +153,16 @@ def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOption
     timings["report_s"] = time.perf_counter() - t0
     atomic_write_json(out / "metrics.json", metrics.to_json())
     return metrics
+
+
+def host_outputs(series: Mapping[str, Any]) -> StepOutputs:
+    """Per-frame outputs by name (lists, as a run's checkpoints keep them, or arrays) as :class:`StepOutputs` of
+    numpy arrays [T, ...]; ValueError naming the series missing (a checkpoint older than a series)."""
+    missing = [name for name in StepOutputs._fields if name not in series]
+    if missing:
+        raise ValueError(f"the run's per-frame outputs lack {', '.join(missing)} (a checkpoint of an older gsjax: "
+                         "run it again with --overwrite)")
+    return StepOutputs(*(np.asarray(series[name]) for name in StepOutputs._fields))
 
 
 # The per-frame outputs metrics.json keeps (the flags are listed as frame numbers: skipped_frames, ...).
@@ -180,7 +192,7 @@ def is_evaluation_frame(t: int, eval_every: int) -> bool:
 
 
 def _render_metrics(sequence, read, config: SlamConfig, options: OutputOptions, state: SlamState,
-                    outputs: dict) -> tuple[RenderMetrics, CBKNNSummary | None]:
+                    outputs: StepOutputs) -> tuple[RenderMetrics, CBKNNSummary | None]:
     """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0, except frames
     skipped for lack of depth: the final map rendered canonically at the estimated poses, compared with the input
     (masked by valid depth). ``mean`` is None when no frame is left.
@@ -189,8 +201,8 @@ def _render_metrics(sequence, read, config: SlamConfig, options: OutputOptions, 
     ``renders/frame_T.png``; when CB-KNN smooths renders (``paper``), they are also rendered with CB-KNN (the
     frame's own motion gamma) for its diagnostics: K and rho maps in ``renders/cbknn_T.png`` and, returned second,
     their statistics (None otherwise)."""
-    total = len(outputs["w2c"])
-    frames = [t for t in range(total) if is_evaluation_frame(t, options.eval_every) and not outputs["skipped"][t]]
+    total = len(outputs.w2c)
+    frames = [t for t in range(total) if is_evaluation_frame(t, options.eval_every) and not outputs.skipped[t]]
     if not frames:
         return RenderMetrics(), None
     samples = set(np.unique(np.linspace(0, len(frames) - 1, min(options.samples, len(frames))).round().astype(int)))
@@ -201,7 +213,7 @@ def _render_metrics(sequence, read, config: SlamConfig, options: OutputOptions, 
     renders.mkdir(parents=True, exist_ok=True)
     for position, t in enumerate(frames):
         frame = read(t)
-        w2c = jnp.asarray(outputs["w2c"][t], jnp.float32)
+        w2c = jnp.asarray(outputs.w2c[t], jnp.float32)
         out = _eval_render(state.gaussians, w2c, sequence.intrinsics, config.raster)
         values = render_metrics_splatam(out.color, out.depth, jnp.asarray(frame.color), jnp.asarray(frame.depth))
         per_frame.append({k: float(v) for k, v in values.items()})
@@ -210,7 +222,7 @@ def _render_metrics(sequence, read, config: SlamConfig, options: OutputOptions, 
         panel = render_panel(np.asarray(out.color), frame.color, np.asarray(out.depth), frame.depth)
         save_rgb_png(renders / f"frame_{t:06d}.png", panel)
         if smoothing:
-            gamma = float(outputs["gamma"][t])
+            gamma = float(outputs.gamma[t])
             stats = jax.device_get(_cbknn_stats(state.gaussians, w2c, sequence.intrinsics, config.raster, params,
                                                 jnp.float32(gamma)))
             diagnostics.append(_cbknn_sample(stats, t, gamma, params.cell, renders / f"cbknn_{t:06d}.png"))

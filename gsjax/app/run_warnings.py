@@ -7,33 +7,33 @@ usable depth or diverged; the host only words it.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 
 import numpy as np
 
 from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
 from gsjax.slam.config import SlamConfig
+from gsjax.slam.system import StepOutputs
 
 # Median depth (m) of a frame outside this range means the depth scale is almost surely wrong for an indoor scene.
 PLAUSIBLE_MEDIAN_DEPTH_M = (0.1, 20.0)
 
 
-def run_warnings(sequence: Sequence, config: SlamConfig, outputs: Mapping, read: Callable[[int], Frame], *,
+def run_warnings(sequence: Sequence, config: SlamConfig, outputs: StepOutputs, read: Callable[[int], Frame], *,
                  start: int = 0, depth_units: bool = True) -> list[str]:
     """The warnings of frames ``start`` .. ``start + T - 1``, in frame order.
 
     Args:
-      outputs: per-frame :class:`gsjax.slam.system.StepOutputs` fields by name, each [T] (arrays or lists; at least
-        ``skipped``, ``retried``, ``diverged``, ``num_gaussians``, ``depth_valid``).
+      outputs: the frames' :class:`gsjax.slam.system.StepOutputs` on the host, each field [T, ...].
       read: frame ``t``'s host frame (only the first processed frame is read, for its depth unit).
       depth_units: check the depth unit at the first frame that was processed (a run checks it once).
     """
-    skipped = np.asarray(outputs["skipped"], bool)
-    retried = np.asarray(outputs["retried"], bool)
-    diverged = np.asarray(outputs["diverged"], bool)
-    started = np.asarray(outputs["num_gaussians"]) > 0
-    depth_valid = np.asarray(outputs["depth_valid"], np.float64)
+    skipped = np.asarray(outputs.skipped, bool)
+    retried = np.asarray(outputs.retried, bool)
+    diverged = np.asarray(outputs.diverged, bool)
+    started = np.asarray(outputs.num_gaussians) > 0
+    depth_valid = np.asarray(outputs.depth_valid, np.float64)
     processed = np.flatnonzero(~skipped)
     first = int(processed[0]) if depth_units and processed.size else -1
     messages = []

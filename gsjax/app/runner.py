@@ -31,7 +31,7 @@ from gsjax.app.compilation_cache import exported_call
 from gsjax.app.memory import limit_malloc_arenas
 from gsjax.app.progress import Progress
 from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
-from gsjax.app.run_outputs import OutputOptions, finish_run, is_evaluation_frame, run_record
+from gsjax.app.run_outputs import OutputOptions, finish_run, host_outputs, is_evaluation_frame, run_record
 from gsjax.app.run_warnings import run_warnings
 from gsjax.camera import invert_transform
 from gsjax.data.sequence import Sequence
@@ -190,14 +190,14 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
             if ledger.first_chunk_s is None:
                 ledger.first_chunk_s = chunk.seconds
             # Printed as they happen; metrics.json lists them again from all the outputs (finish_run).
-            real = {name: np.asarray(value)[:count] for name, value in chunk_out._asdict().items()}
+            real = StepOutputs(*(np.asarray(value)[:count] for value in chunk_out))
             for message in run_warnings(sequence, config, real, lambda t: chunk.frames[t - done], start=done,
                                         depth_units=not ledger.depth_units_checked):
                 progress.write(f"warning: {message}", file=sys.stderr)
-            ledger.depth_units_checked |= bool(np.any(~real["skipped"]))
+            ledger.depth_units_checked |= bool(np.any(~real.skipped))
             kept.update((done + i, frame) for i, frame in enumerate(chunk.frames)
                         if is_evaluation_frame(done + i, options.eval_every))
-            for name, values in real.items():
+            for name, values in real._asdict().items():
                 outputs.setdefault(name, []).extend(values.tolist())
             pending.append(chunk_out)
             done = ledger.frames_done = done + count
@@ -230,7 +230,7 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
         checkpoints.close()
 
     timings["compile_s_estimate"] = compile_estimate(ledger.first_chunk_s, timings["slam_s"], total, options.chunk)
-    return finish_run(sequence, config, options.outputs, state, outputs, timings, record,
+    return finish_run(sequence, config, options.outputs, state, host_outputs(outputs), timings, record,
                       input_warnings=input_warnings, resume_warnings=resume_warnings, checkpoints=ledger.checkpoints,
                       frames=kept)
 

@@ -48,6 +48,7 @@ from gsjax.io.atomic import atomic_write_bytes, atomic_write_json, remove_stale_
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import Group, batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
 from gsjax.slam.state import initial_state, keyframe_capacity_for
+from gsjax.slam.system import StepOutputs
 
 CSV_METRICS = ("seed", "ate_rmse_cm", "ate_splatam_cm", "psnr_db", "depth_l1_cm", "seconds", "run")
 
@@ -290,7 +291,7 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
             for i, point in enumerate(batch):
                 state, outputs = per_config[i]
                 run_dir = run_folder(out, point.index)
-                run_outputs = {name: np.asarray(v).tolist() for name, v in outputs._asdict().items()}
+                run_outputs = StepOutputs(*(np.asarray(v) for v in outputs))
                 record = run_record(sequence, point.config, chunk=options.chunk, seed=point.seed, describe=describe,
                                     frames=total, sweep=dict(values=point.values, batch=number, batch_size=len(batch)))
                 seconds = (slam_s + regrow_s) / len(batch)
