@@ -99,7 +99,7 @@ def map_window(
     def strided_view(g, view_index, smooth, it, selection):
         color, depth, intrinsics_s = strided_frame(views.color[view_index], views.depth[view_index], intrinsics, it % 4)
         if selection is not None:
-            selection = strided_slots(selection, config, intrinsics, it % 4)
+            selection = strided_slots(selection, config.raster, intrinsics, it % 4)
         view = render_view(g, views.w2c[view_index], intrinsics_s, strided_config.raster, strided_config.cbknn,
                            smooth, views.gamma[view_index], selection)
         return view, color, depth

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 
 from gsjax.camera import Intrinsics, constant_velocity, orthonormalize
 from gsjax.data.frame import Frame
-from gsjax.raster.cbknn import motion_from_poses
+from gsjax.raster.cbknn import CBKNN, motion_from_poses
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import densify
 from gsjax.slam.keyframes import select_window
@@ -81,9 +81,8 @@ def sanitize_frame(frame: Frame) -> Frame:
                                color=jnp.where(finite[..., None], frame.color, 0.0))
 
 
-def _motion(state: SlamState, config: SlamConfig) -> jax.Array:
-    """CB-KNN's inter-frame motion gamma from the last two poses (0 before frame 2)."""
-    params = config.cbknn.params
+def _motion(state: SlamState, params: CBKNN) -> jax.Array:
+    """CB-KNN's inter-frame motion gamma from the last two poses (0 before frame 2; ``params``' tau_t, tau_r)."""
     return jnp.where(state.frame >= 2, motion_from_poses(state.w2c_prev2, state.w2c_prev1, params.tau_t, params.tau_r),
                      0.0)
 
@@ -99,13 +98,14 @@ def tracking_problem(state: SlamState, color: jax.Array, depth: jax.Array, confi
     poses it: the map, the constant-velocity prediction, CB-KNN's motion from the last two poses, and the smooth flag
     (``paper`` mode and a keyframe; the first frame with depth always is one)."""
     return TrackingProblem(state.gaussians, color, depth, predicted_pose(state), intrinsics,
-                           jnp.asarray(config.cbknn.smooth_renders) & _is_keyframe(state, config),
-                           _motion(state, config))
+                           jnp.asarray(config.cbknn.smooth_renders) & _is_keyframe(state, config.keyframe_every),
+                           _motion(state, config.cbknn.params))
 
 
-def _is_keyframe(state: SlamState, config: SlamConfig) -> jax.Array:
-    """The frame after ``state`` is a keyframe: by SplaTAM's rule, or the first frame with depth (the map's first)."""
-    return is_keyframe(state.frame, state.num_frames, config.keyframe_every) | (state.keyframes.count == 0)
+def _is_keyframe(state: SlamState, every: int) -> jax.Array:
+    """The frame after ``state`` is a keyframe: by SplaTAM's rule (one ``every`` frames), or the first frame with
+    depth (the map's first)."""
+    return is_keyframe(state.frame, state.num_frames, every) | (state.keyframes.count == 0)
 
 
 def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics,
@@ -136,7 +136,7 @@ def _coast(state: SlamState, frame: Frame, config: SlamConfig, pose) -> tuple[Sl
     zero = jnp.float32(0.0)
     outputs = StepOutputs(w2c=w2c, tracking_loss=zero, mapping_loss=zero, num_gaussians=state.gaussians.num_active(),
                           added=jnp.int32(0), dropped=jnp.int32(0), keyframe=jnp.bool_(False),
-                          gamma=jnp.asarray(_motion(state, config), jnp.float32), nonfinite=jnp.int32(0),
+                          gamma=jnp.asarray(_motion(state, config.cbknn.params), jnp.float32), nonfinite=jnp.int32(0),
                           truncated=jnp.bool_(False), truncation_residual=zero, skipped=jnp.bool_(True),
                           retried=jnp.bool_(False), diverged=jnp.bool_(False), nonfinite_gaussians=jnp.int32(0),
                           tracking_iters=jnp.int32(0), depth_valid=jnp.mean(frame.depth > 0))
@@ -153,7 +153,7 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
     state = dataclasses.replace(state, gaussians=stored)
     frame = add_depth_noise(frame, config.noise, jax.random.fold_in(state.key, NOISE_STREAM))
     started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
-    keyframe = _is_keyframe(state, config)
+    keyframe = _is_keyframe(state, config.keyframe_every)
     problem = tracking_problem(state, frame.color, frame.depth, config, intrinsics)
     smooth, gamma, w2c_init = problem.smooth, problem.gamma, problem.w2c_init
     key_window, key_map, key_next = jax.random.split(state.key, 3)

@@ -109,9 +109,9 @@ def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
     objective = tracking_objective(problem, config)
     strided = strided_problem(problem, config) if config.tracking.strided_iters else None
     if config.tracking.optimizer == "lm":
-        return _track_lm((objective.view_at, problem.color, problem.depth), objective.loss, problem.w2c_init, config,
-                         objective.lambda_color, None if strided is None else strided(0))
-    return _track_adam(objective.loss, problem.w2c_init, config,
+        return _track_lm((objective.view_at, problem.color, problem.depth), objective.loss, problem.w2c_init,
+                         config.tracking, objective.lambda_color, None if strided is None else strided(0))
+    return _track_adam(objective.loss, problem.w2c_init, config.tracking,
                        None if strided is None else lambda delta, phase, sel: strided(phase)[0].loss(delta, sel),
                        coarse_losses(problem, config), objective.select)
 
@@ -150,7 +150,7 @@ def strided_problem(
                                        strided_config)
 
         def on_grid_slots(selection):
-            return None if selection is None else strided_slots(selection, config, intrinsics, phase)
+            return None if selection is None else strided_slots(selection, config.raster, intrinsics, phase)
 
         return TrackingObjective(
             view_at=lambda delta, selection=None: objective.view_at(delta, on_grid_slots(selection)),
@@ -175,7 +175,7 @@ class AdamCarry(NamedTuple):
     selection: Any
 
 
-def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coarse=(), select=None) -> TrackResult:
+def _track_adam(loss_fn, w2c_init, cfg: TrackingConfig, strided_loss_fn=None, coarse=(), select=None) -> TrackResult:
     """Adam on ``loss_fn`` (delta [6], selection -> []) for ``tracking.iters`` iterations, after
     ``tracking.strided_iters`` on ``strided_loss_fn(delta, phase, selection)`` when given (phase = the iteration
     number mod 4: each of the four strided grids in turn), after ``tracking.coarse.iters`` split over the ``coarse``
@@ -183,8 +183,7 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
     not compare with them. With ``tracking.reselect_every`` R > 1, ``select(delta)`` chooses the contributor slots
     at iterations 0, R, 2R, ... and the iterations in between composite those (the selection is None with R = 1:
     every render chooses its own)."""
-    cfg = config.tracking
-    optimizer = pose_optimizer(config.tracking)
+    optimizer = pose_optimizer(cfg)
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
     every = cfg.reselect_every if select is not None else 1
@@ -237,12 +236,11 @@ def _track_adam(loss_fn, w2c_init, config: SlamConfig, strided_loss_fn=None, coa
                        nonfinite_steps(final.opt_state), final.it)
 
 
-def _track_lm(full, loss_fn, w2c_init, config: SlamConfig, lambda_color, strided=None) -> TrackResult:
+def _track_lm(full, loss_fn, w2c_init, cfg: TrackingConfig, lambda_color, strided=None) -> TrackResult:
     """Levenberg-Marquardt on ``full`` = (view_at, colour, depth) from the solution of ``strided`` (the same on
     every other pixel, at most ``tracking.strided_iters`` steps) when given."""
     import optimistix as optx  # 0.3 s to import (equinox, lineax): only the LM tracker needs it
 
-    cfg = config.tracking
     solver: Any = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)  # generic over types optimistix leaves open
 
     def solve(problem, start, steps, blur_px):
@@ -292,10 +290,10 @@ def within_step_bound(w2c: jax.Array, w2c_init: jax.Array, tracking: TrackingCon
     return jnp.all(jnp.isfinite(w2c)) & (shift <= cfg.guard.max_step_m) & (turn <= jnp.deg2rad(cfg.guard.max_step_deg))
 
 
-def _diverged(result: TrackResult, w2c_init, previous_loss, config: SlamConfig) -> jax.Array:
+def _diverged(result: TrackResult, w2c_init, previous_loss, tracking: TrackingConfig) -> jax.Array:
     # A non-finite loss (every iteration skipped) already keeps the start pose; a retry cannot mend the map.
-    jump = (previous_loss > 0) & (result.loss > config.tracking.guard.loss_jump * previous_loss)
-    return jnp.isfinite(result.loss) & (jump | ~within_step_bound(result.w2c, w2c_init, config.tracking))
+    jump = (previous_loss > 0) & (result.loss > tracking.guard.loss_jump * previous_loss)
+    return jnp.isfinite(result.loss) & (jump | ~within_step_bound(result.w2c, w2c_init, tracking))
 
 
 def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: jax.Array) -> GuardedTrack:
@@ -320,13 +318,13 @@ def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: j
 
         def another(carry):
             number, first, _ = carry
-            return (number == 0) | ((number == 1) & _diverged(first, w2c_init, previous_loss, config))
+            return (number == 0) | ((number == 1) & _diverged(first, w2c_init, previous_loss, cfg))
 
         zeros = TrackResult(jnp.zeros((4, 4), jnp.float32), jnp.float32(0.0), jnp.int32(0), jnp.int32(0))
         _, first, second = jax.lax.while_loop(another, attempt, (jnp.int32(0), zeros, zeros))
     else:
         first = second = track(problem, config)
-    retry = _diverged(first, w2c_init, previous_loss, config)
+    retry = _diverged(first, w2c_init, previous_loss, cfg)
     ok_first = within_step_bound(first.w2c, w2c_init, config.tracking)
     ok_second = within_step_bound(second.w2c, w2c_init, config.tracking)
     use_second = retry & ok_second & (~ok_first | (second.loss < first.loss))

@@ -64,17 +64,22 @@ def strided_setup(config: SlamConfig, intrinsics: Intrinsics) -> SlamConfig:
     full image's) and the pixel-sized settings at half the width. The render is then the full render's pixels
     there, at a fraction of its cost."""
     raster = dataclasses.replace(config.raster, dilation=config.raster.dilation / 4.0,
-                                 tile_size=max(config.raster.tile_size // 2, 1))
+                                 tile_size=_strided_tile(config.raster.tile_size))
     return at_width(dataclasses.replace(config, raster=raster), intrinsics.width // 2, intrinsics.width)
 
 
-def strided_slots(selection: SlotSelection, config: SlamConfig, intrinsics: Intrinsics,
+def _strided_tile(tile_size: int) -> int:
+    """The tile side (px) of strided renders: half the full image's, so the tile lists stay the full image's."""
+    return max(tile_size // 2, 1)
+
+
+def strided_slots(selection: SlotSelection, raster: RasterSettings, intrinsics: Intrinsics,
                   phase: int | jax.Array) -> SlotSelection:
     """The slots of strided grid ``phase`` (0-3, may be traced; see :func:`strided_frame`) taken from ``selection``,
-    made for the full image of ``intrinsics`` under ``config``: the strided render's own selection at that pose, laid
+    made for the full image of ``intrinsics`` under ``raster``: the strided render's own selection at that pose, laid
     out for :func:`strided_setup`'s tiles."""
-    return strided_selection(selection, intrinsics.height, intrinsics.width, config.raster.tile_size,
-                             strided_setup(config, intrinsics).raster.tile_size, phase // 2, phase % 2)
+    return strided_selection(selection, intrinsics.height, intrinsics.width, raster.tile_size,
+                             _strided_tile(raster.tile_size), phase // 2, phase % 2)
 
 
 def strided_observation(image: jax.Array, row: int | jax.Array, col: int | jax.Array) -> jax.Array:

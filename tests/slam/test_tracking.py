@@ -169,8 +169,7 @@ def test_reselect_every_chooses_contributors_at_every_rth_iteration_across_stage
     for every, expected_selects in ((5, 3), (1, 0)):
         chosen.clear(), handed.clear()
         tracking = dataclasses.replace(config.tracking, iters=9, strided_iters=3, reselect_every=every)
-        cfg = dataclasses.replace(config, tracking=tracking)
-        jax.block_until_ready(jax.jit(lambda w: _track_adam(loss, w, cfg, lambda d, phase, sel: loss(d, sel), (),
+        jax.block_until_ready(jax.jit(lambda w: _track_adam(loss, w, tracking, lambda d, phase, sel: loss(d, sel), (),
                                                             select))(jnp.eye(4)))
         assert len(chosen) == expected_selects
         if every == 5:
@@ -194,7 +193,7 @@ def test_adam_skips_non_finite_iterations_and_keeps_the_best_finite_pose():
         return jnp.where(delta[0] > 0.011, jnp.nan, jnp.sum((delta - target) ** 2))
 
     w2c_init = jnp.asarray(relative_gt_w2c()[TRUE_FRAME], jnp.float32)
-    result = jax.jit(lambda w: _track_adam(loss_fn, w, config))(w2c_init)
+    result = jax.jit(lambda w: _track_adam(loss_fn, w, config.tracking))(w2c_init)
     best = np.asarray(se3_log(result.w2c @ jnp.linalg.inv(w2c_init)))
     # Adam's first steps have size lr: rho_x = 0.002 k after k steps, so the losses at k = 0..5 are finite and the
     # loss after the 6th step (rho_x = 0.012) is not: 6 finite iterations, 14 skipped, best at k = 5.
@@ -216,7 +215,7 @@ def test_early_stop_window_stops_once_the_loss_stops_falling_and_zero_runs_every
     def tracked(window):
         tracking = dataclasses.replace(config.tracking, iters=60, lr_trans=2e-3,
                                        stop=EarlyStop(window=window, rtol=1e-3))
-        run = jax.jit(lambda w: _track_adam(loss_fn, w, dataclasses.replace(config, tracking=tracking)))
+        run = jax.jit(lambda w: _track_adam(loss_fn, w, tracking))
         return run(jnp.eye(4, dtype=jnp.float32))
 
     full, stopped = tracked(0), tracked(3)
