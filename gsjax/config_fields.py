@@ -118,7 +118,7 @@ def spec_of(field: dataclasses.Field) -> FieldSpec | None:
 def kind_of(field: dataclasses.Field) -> str:
     """The field's value type as declared: ``int``, ``float``, ``bool``, ``str``, ``tuple`` or a section's class."""
     kind = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", str(field.type))
-    return kind.split("[")[0]
+    return kind.split("[")[0]  # "float | None" stays whole: None is then a valid value
 
 
 def check_fields(config: Any, owner: str) -> None:
@@ -139,6 +139,9 @@ def check_value(name: str, value: Any, spec: FieldSpec, kind: str) -> None:
 
 
 def _valid(value: Any, spec: FieldSpec, kind: str) -> bool:
+    if value is None:
+        return "None" in kind  # an optional field (``float | None``) left unset
+    kind = kind.split(" |")[0]
     if spec.choices is not None:
         return isinstance(value, str) and value in spec.choices
     if kind == "tuple":

@@ -38,6 +38,16 @@ def test_every_config_field_has_a_unit_and_a_meaning():
     # Every config class is reached from SlamConfig (so the reference and the checks cover it).
     reached = {type(entry.owner) for entry in walk(SlamConfig())}
     assert reached == set(CONFIG_CLASSES)
+    # The camera and the synthetic scene declare theirs the same way (and check themselves from them).
+    from gsjax.camera import make_intrinsics
+    from gsjax.data.synthetic import SyntheticConfig
+
+    assert undeclared(make_intrinsics(40.0, 40.0, 19.5, 14.5, 30, 40)) == []
+    assert undeclared(SyntheticConfig()) == []
+    with pytest.raises(ValueError, match=r"intrinsics\.fy must be a finite number > 0 \(px\), got 0\.0"):
+        make_intrinsics(40.0, 0.0, 19.5, 14.5, 30, 40)
+    with pytest.raises(ValueError, match=r"synthetic\.num_frames must be an int >= 1 \(frames\), got 0"):
+        SyntheticConfig(num_frames=0)
 
 
 def test_a_field_without_a_unit_or_a_meaning_is_found():

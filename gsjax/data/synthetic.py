@@ -25,6 +25,7 @@ import dataclasses
 import numpy as np
 
 from gsjax.camera import Intrinsics, make_intrinsics
+from gsjax.config_fields import check_fields, param
 from gsjax.data import scene
 from gsjax.data.sequence import Sequence
 
@@ -52,21 +53,24 @@ class SyntheticConfig:
       supersample: colour samples per pixel along each axis (anti-aliasing); depth is always the pixel centre's.
     """
 
-    width: int = 160
-    height: int = 120
-    fx: float | None = None
-    fy: float | None = None
-    num_frames: int = 60
-    fps: float = 30.0
-    speed: float = 1.0
-    seed: int = 0
-    depth_noise: float = 0.0
-    depth_holes: bool = False
-    hole_threshold: float = 0.05
-    color_noise: float = 0.0
-    motion_blur: int = 1
-    shutter: float = 0.5
-    supersample: int = 2
+    width: int = param(160, "px", static=True, low=1)
+    height: int = param(120, "px", static=True, low=1)
+    fx: float | None = param(None, "px", low=0.0, low_open=True, scaling=None)
+    fy: float | None = param(None, "px", low=0.0, low_open=True, scaling=None)
+    num_frames: int = param(60, "frames", static=True, low=1)
+    fps: float = param(30.0, "Hz", low=0.0, low_open=True)
+    speed: float = param(1.0, "ratio", low=0.0)
+    seed: int = param(0, "count", static=True)
+    depth_noise: float = param(0.0, "m", low=0.0)
+    depth_holes: bool = param(False, "flag", static=True)
+    hole_threshold: float = param(0.05, "ratio", low=0.0)
+    color_noise: float = param(0.0, "colour", low=0.0)
+    motion_blur: int = param(1, "count", static=True, low=1)
+    shutter: float = param(0.5, "ratio", low=0.0, high=1.0)
+    supersample: int = param(2, "count", static=True, low=1)
+
+    def __post_init__(self):
+        check_fields(self, "synthetic")
 
     def with_sensor_noise(self) -> "SyntheticConfig":
         """This config with Kinect-like sensor effects: 1.5 mm depth noise at 1 m (6 mm at 2 m), holes at depth
@@ -182,11 +186,6 @@ def render_frame(config: SyntheticConfig, frame: int) -> tuple[np.ndarray, np.nd
 
 def synthetic_sequence(config: SyntheticConfig = SyntheticConfig()) -> Sequence:
     """A :class:`Sequence` of ``config.num_frames`` frames rendered on demand, with exact GT poses (all valid)."""
-    if config.num_frames < 1:
-        raise ValueError(f"num_frames must be >= 1, got {config.num_frames}")
-    for name in ("supersample", "motion_blur"):
-        if int(getattr(config, name)) < 1:
-            raise ValueError(f"{name} must be >= 1, got {getattr(config, name)}")
     frames = np.arange(config.num_frames)
     return Sequence(
         name=f"synthetic-seed{config.seed}",

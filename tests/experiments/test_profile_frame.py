@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
-import profile_frame  # noqa: E402
+import profile_frame
 
 
 def test_step_stages_attribute_each_op_to_its_named_scope():
