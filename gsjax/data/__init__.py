@@ -8,7 +8,7 @@
     times, c2w, valid = seq.gt_trajectory()   # camera-to-world, as the dataset gives it (not re-based)
 
 The readers and their formats: :mod:`gsjax.data.tum`, :mod:`gsjax.data.replica`, :mod:`gsjax.data.scannet`,
-:mod:`gsjax.data.sevenscenes`; the downscaling rules: :mod:`gsjax.data.images`.
+:mod:`gsjax.data.sevenscenes`, ROS bags :mod:`gsjax.data.rosbag`; the downscaling rules: :mod:`gsjax.data.images`.
 """
 
 from __future__ import annotations
@@ -17,15 +17,17 @@ import dataclasses
 import math
 from pathlib import Path
 
+from gsjax.data.bag_write import write_rosbag
 from gsjax.data.frame import DatasetError, DatasetWarning, Frame, stack_frames
 from gsjax.data.listing import GivenIntrinsics, sequence_from_files
 from gsjax.data.replica import list_replica
+from gsjax.data.rosbag import BagOptions, open_rosbag
 from gsjax.data.scannet import list_scannet
 from gsjax.data.sequence import Sequence
 from gsjax.data.sevenscenes import list_sevenscenes
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.data.tum import list_tum, write_tum
-from gsjax.names import SYNTHETIC
+from gsjax.names import BAGS, SYNTHETIC
 
 # One reader per name of gsjax.names.DATASETS (tests check the two agree).
 READERS = {"tum": list_tum, "replica": list_replica, "scannet": list_scannet, "7scenes": list_sevenscenes}
@@ -45,11 +47,13 @@ def open_sequence(
     register_color: bool = True,
     sensor_noise: bool = False,
     seed: int = 0,
+    bag: BagOptions | None = None,
 ) -> Sequence:
     """Open an RGB-D sequence stored in a dataset's own layout; frames are read only when accessed.
 
     Args:
-      dataset: "tum", "replica", "scannet", "7scenes", or "synthetic": the ray-cast room
+      dataset: "tum", "replica", "scannet", "7scenes", "rosbag" (a ROS 1 ``.bag`` file or a ROS 2 bag folder,
+        :mod:`gsjax.data.rosbag`), or "synthetic": the ray-cast room
         (:mod:`gsjax.data.synthetic`, 160x120 before ``downscale``, :data:`SYNTHETIC_FRAMES` frames unless
         ``max_frames`` says otherwise; ``stride`` speeds its motion up; no path, camera or depth-scale overrides).
       path: the sequence directory (TUM: the one holding rgb.txt; Replica: the scene folder holding results/).
@@ -66,6 +70,7 @@ def open_sequence(
         (7-Scenes; see :mod:`gsjax.data.sevenscenes`); False reads colour as stored.
       sensor_noise, seed: synthetic only: Kinect-like sensor effects (:meth:`SyntheticConfig.with_sensor_noise`)
         and their seed.
+      bag: rosbag only: its topics, pairing tolerance and ground truth (:class:`gsjax.data.rosbag.BagOptions`).
 
     Returns:
       A :class:`Sequence` whose ``intrinsics`` are the downscaled ones.
@@ -83,16 +88,21 @@ def open_sequence(
         if path is not None or intrinsics is not None or depth_scale is not None or start:
             raise ValueError("the synthetic sequence is generated: no path, intrinsics, depth_scale or start")
         return _synthetic(max_frames, stride, downscale, sensor_noise, seed)
-    if dataset not in READERS:
-        raise ValueError(f"unknown dataset {dataset!r}; expected one of {', '.join(READERS)}, {SYNTHETIC}")
+    if dataset not in READERS and dataset not in BAGS:
+        raise ValueError(f"unknown dataset {dataset!r}; expected one of {', '.join((*READERS, *BAGS))}, {SYNTHETIC}")
     if sensor_noise:
         raise ValueError("sensor_noise applies to the synthetic sequence only")
     if path is None:
-        raise ValueError(f"the {dataset} sequence needs its directory (path)")
+        raise ValueError(f"the {dataset} sequence needs its {'bag' if dataset in BAGS else 'directory'} (path)")
     if depth_scale is not None and not (isinstance(depth_scale, (int, float)) and math.isfinite(depth_scale)
                                         and depth_scale > 0):
         raise ValueError(f"depth_scale must be a finite number > 0 (raw units per metre), got {depth_scale!r}")
+    if bag is not None and dataset not in BAGS:
+        raise ValueError(f"bag options apply to {', '.join(BAGS)} only")
     path = Path(path)
+    if dataset in BAGS:
+        return open_rosbag(path, bag or BagOptions(), intrinsics=intrinsics, depth_scale=depth_scale, start=start,
+                           stride=stride, max_frames=max_frames, downscale=downscale)
     if not path.is_dir():
         raise DatasetError(f"{path}: {dataset} sequence directory is missing")
     files = READERS[dataset](path, intrinsics)
@@ -113,6 +123,7 @@ def _synthetic(max_frames: int | None, stride: int, downscale: int, sensor_noise
 
 
 __all__ = [
+    "BagOptions",
     "DatasetError",
     "DatasetWarning",
     "Frame",
@@ -121,5 +132,6 @@ __all__ = [
     "open_sequence",
     "stack_frames",
     "synthetic_sequence",
+    "write_rosbag",
     "write_tum",
 ]

@@ -73,7 +73,7 @@ def list_tum(path: Path, intrinsics: GivenIntrinsics = None) -> FrameFiles:
             warnings.warn(f"{path / name}: {listed.size - paired.size} of {listed.size} {other} within "
                           f"{MAX_TIME_DIFFERENCE} s and are skipped", DatasetWarning, stacklevel=2)
     times = rgb_times[rgb_idx]
-    c2w, valid = _associate_groundtruth(path / "groundtruth.txt", times)
+    c2w, valid = read_groundtruth_at(path / "groundtruth.txt", times)
     depth_paths = [path / depth_names[i] for i in depth_idx]
     camera = given_intrinsics(intrinsics, depth_paths[0])
     return FrameFiles(
@@ -147,10 +147,11 @@ def _read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
     return stamps[keep], [entries[i][1] for i in keep]
 
 
-def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest groundtruth pose within the tolerance for each time -> (c2w [T, 4, 4], valid [T]); all invalid
-    when ``groundtruth.txt`` is absent (TUM's test sequences have none). Non-finite samples and samples whose
-    quaternion is not of unit length are left out, with a warning.
+def read_groundtruth_at(path: Path, times: np.ndarray,
+                        max_dt: float = MAX_TIME_DIFFERENCE) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest pose of the TUM trajectory file ``path`` within ``max_dt`` s of each of ``times`` [T] s ->
+    (c2w [T, 4, 4], valid [T]); all invalid when the file is absent (TUM's test sequences have none). Non-finite
+    samples and samples whose quaternion is not of unit length are left out, with a warning.
 
     Nearest neighbour, the rule of trajectory evaluation (:func:`gsjax.eval.association.associate_timestamps`), not
     :func:`associate`'s one-to-one matching: GT is sampled far faster than the frames (100 Hz vs 30 Hz), so each
@@ -167,7 +168,7 @@ def _associate_groundtruth(path: Path, times: np.ndarray) -> tuple[np.ndarray, n
         norm = quat_norm[np.flatnonzero(~rigid)[0]]
         warn_bad_poses(where, ~rigid, f"pose is not a rigid transform (quaternion norm {norm:.4g}, not 1)")
     rows = rows[finite & rigid]
-    frame_idx, row_idx = associate_timestamps(times, rows[:, 0], MAX_TIME_DIFFERENCE)
+    frame_idx, row_idx = associate_timestamps(times, rows[:, 0], max_dt)
     picked = rows[row_idx]
     q_xyzw = picked[:, 4:] / np.linalg.norm(picked[:, 4:], axis=-1, keepdims=True)
     c2w[frame_idx, :3, :3] = quaternion_wxyz_to_rotation(np.roll(q_xyzw, 1, axis=-1))

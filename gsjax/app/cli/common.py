@@ -9,7 +9,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from gsjax.names import CBKNN_MODES, DATASETS, PRESETS, SYNTHETIC
+from gsjax.names import BAGS, CBKNN_MODES, DATASETS, PRESETS, SYNTHETIC
 
 
 class UserError(Exception):
@@ -75,8 +75,9 @@ def port(text: str) -> int:
 
 def add_sequence_flags(p) -> None:
     """The flags that choose the sequence, its camera and the config (shared by run, sweep and landscape)."""
-    p.add_argument("--dataset", choices=DATASETS + (SYNTHETIC,), required=True)
-    p.add_argument("--path", type=Path, default=None, help="dataset directory (not needed for synthetic)")
+    p.add_argument("--dataset", choices=DATASETS + BAGS + (SYNTHETIC,), required=True)
+    p.add_argument("--path", type=Path, default=None,
+                   help="dataset directory; for rosbag a ROS 1 .bag file or a ROS 2 bag folder (not for synthetic)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--preset", choices=PRESETS, default="cpu", help="configuration preset (default cpu)")
     p.add_argument("--cbknn", choices=CBKNN_MODES, default="off", help="CB-KNN mode (default off = SplaTAM)")
@@ -91,6 +92,59 @@ def add_sequence_flags(p) -> None:
                    help="stored depth units per metre, overriding the dataset's (TUM 5000, 7-Scenes 1000)")
     p.add_argument("--synthetic-noise", action="store_true",
                    help="synthetic dataset only: Kinect-like sensor effects (depth noise, holes, colour noise, blur)")
+    add_bag_flags(p)
+
+
+def add_bag_flags(p) -> None:
+    """The flags of a ROS bag (``--dataset rosbag``): its topics, the pairing tolerance, the ground truth."""
+    bag = p.add_argument_group("ROS bags (--dataset rosbag)")
+    bag.add_argument("--rgb-topic", default=None, help="colour topic (default: the bag's one colour image topic)")
+    bag.add_argument("--depth-topic", default=None, help="depth topic (default: the bag's one depth image topic)")
+    bag.add_argument("--camera-info-topic", default=None,
+                     help="sensor_msgs/CameraInfo topic (default: the bag's one, or the one beside the depth topic)")
+    bag.add_argument("--max-time-diff", type=seconds, default=0.02, metavar="S",
+                     help="largest colour-depth (and frame-ground truth) stamp difference paired, s (default 0.02)")
+    bag.add_argument("--groundtruth", type=Path, default=None, metavar="FILE",
+                     help="ground truth as a TUM trajectory file (camera-to-world)")
+    bag.add_argument("--gt-frames", type=frame_pair, default=None, metavar="PARENT,CHILD",
+                     help="ground truth from the bag's /tf: the transform PARENT -> CHILD is the camera-to-world pose")
+
+
+def seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number of seconds >= 0, got {text!r}")
+    return value
+
+
+def frame_pair(text: str) -> tuple[str, str]:
+    parts = [part.strip() for part in text.split(",")]
+    if len(parts) != 2 or not all(parts):
+        raise argparse.ArgumentTypeError(f"expected two frame names PARENT,CHILD (e.g. world,camera), got {text!r}")
+    return parts[0], parts[1]
+
+
+def bag_options(args):
+    """The :class:`gsjax.data.rosbag.BagOptions` of the command line; UserError for bag flags given for another
+    dataset."""
+    from gsjax.data import BagOptions
+
+    given = {flag: value for flag, value in (("--rgb-topic", args.rgb_topic), ("--depth-topic", args.depth_topic),
+                                             ("--camera-info-topic", args.camera_info_topic),
+                                             ("--groundtruth", args.groundtruth), ("--gt-frames", args.gt_frames))
+             if value is not None}
+    if args.dataset not in BAGS:
+        if given or args.max_time_diff != 0.02:
+            flag = next(iter(given), "--max-time-diff")
+            raise UserError(f"{flag} applies to --dataset {' or '.join(BAGS)} only")
+        return None
+    if args.groundtruth is not None and args.gt_frames is not None:
+        raise UserError("give the ground truth with --groundtruth FILE or --gt-frames PARENT,CHILD, not both")
+    return BagOptions(args.rgb_topic, args.depth_topic, args.camera_info_topic, args.max_time_diff, args.groundtruth,
+                      args.gt_frames)
 
 
 def pinhole(text: str) -> tuple[float, float, float, float]:
@@ -145,6 +199,7 @@ def open_run_sequence(args):
         raise UserError(f"--downscale must be >= 1, got {args.downscale}")
     from gsjax.data import open_sequence
 
+    bag = bag_options(args)
     if args.dataset == SYNTHETIC:
         for flag, value in (("--intrinsics", args.intrinsics), ("--depth-scale", args.depth_scale)):
             if value is not None:
@@ -153,11 +208,16 @@ def open_run_sequence(args):
     else:
         if args.synthetic_noise:
             raise UserError("--synthetic-noise applies to --dataset synthetic only")
+        what = "FILE_OR_DIR" if args.dataset in BAGS else "DIR"
         if args.path is None:
-            raise UserError(f"--dataset {args.dataset} needs --path DIR")
-        if not args.path.is_dir():
+            raise UserError(f"--dataset {args.dataset} needs --path {what}")
+        if args.dataset in BAGS and not args.path.exists():
+            raise UserError(f"--path {args.path}: no such bag file or folder")
+        if args.dataset not in BAGS and not args.path.is_dir():
             raise UserError(f"--path {args.path}: no such directory")
         source = dict(path=args.path, intrinsics=args.intrinsics, depth_scale=args.depth_scale)
+        if bag is not None:
+            source["bag"] = bag
     native = open_sequence(args.dataset, max_frames=1, **source).intrinsics
     if args.intrinsics is not None and not (0 <= args.intrinsics[2] <= native.width
                                             and 0 <= args.intrinsics[3] <= native.height):
@@ -187,7 +247,17 @@ def describe_run(args, sequence, factor: int) -> dict:
     return dict(dataset=args.dataset, path=str(args.path) if args.path else None, preset=args.preset,
                 cbknn=args.cbknn, downscale=factor, stride=args.stride, overrides=args.overrides,
                 intrinsics=list(args.intrinsics) if args.intrinsics else None, depth_scale=args.depth_scale,
-                sequence=sequence.name)
+                sequence=sequence.name, **_bag_record(args))
+
+
+def _bag_record(args) -> dict:
+    """A bag's reading options as config.json records them (only for a bag: other runs' files stay as they were)."""
+    if args.dataset not in BAGS:
+        return {}
+    return dict(bag=dict(rgb_topic=args.rgb_topic, depth_topic=args.depth_topic,
+                         camera_info_topic=args.camera_info_topic, max_time_diff=args.max_time_diff,
+                         groundtruth=str(args.groundtruth) if args.groundtruth else None,
+                         gt_frames=list(args.gt_frames) if args.gt_frames else None))
 
 
 def backends(text: str) -> list[str]:

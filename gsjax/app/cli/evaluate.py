@@ -6,7 +6,7 @@ import dataclasses
 from pathlib import Path
 
 from gsjax.app.cli import common
-from gsjax.names import DATASETS
+from gsjax.names import BAGS, DATASETS
 
 
 def add(sub) -> None:
@@ -15,9 +15,12 @@ def add(sub) -> None:
     p.add_argument("--est", type=Path, required=True, help="estimated trajectory, TUM format (camera-to-world)")
     p.add_argument("--gt", type=Path, required=True,
                    help="ground truth: a TUM trajectory file, or a dataset directory (with --dataset)")
-    p.add_argument("--dataset", choices=DATASETS, default=None,
+    p.add_argument("--dataset", choices=DATASETS + BAGS, default=None,
                    help="layout of the --gt directory; its GT poses are taken at the dataset's frame timestamps "
-                        "(the frame numbers for replica, scannet and 7scenes, which have no timestamps)")
+                        "(the frame numbers for replica, scannet and 7scenes, which have no timestamps); rosbag: "
+                        "--gt is a bag and its /tf between --gt-frames is the ground truth")
+    p.add_argument("--gt-frames", type=common.frame_pair, default=None, metavar="PARENT,CHILD",
+                   help="with --dataset rosbag: the /tf transform PARENT -> CHILD is the camera-to-world pose")
     p.add_argument("--out", type=Path, default=None, help="metrics JSON (default: <est without suffix>.metrics.json)")
     p.add_argument("--scale", action="store_true", help="also align the scale (similarity / Umeyama)")
     p.add_argument("--max-dt", type=float, default=0.02, help="timestamp association tolerance in s (default 0.02)")
@@ -25,8 +28,18 @@ def add(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _read_ground_truth(gt: Path, dataset: str | None):
-    """(timestamps [M] s, c2w [M, 4, 4] float64, valid [M] bool or None) from a TUM file or a dataset directory."""
+def _read_ground_truth(gt: Path, dataset: str | None, gt_frames: tuple[str, str] | None = None):
+    """(timestamps [M] s, c2w [M, 4, 4] float64, valid [M] bool or None) from a TUM file, a dataset directory or a
+    bag's /tf."""
+    if (dataset in BAGS) != (gt_frames is not None):
+        raise common.UserError("--dataset rosbag and --gt-frames PARENT,CHILD go together (the bag's /tf is its "
+                               "ground truth)")
+    if dataset in BAGS:
+        if not gt.exists():
+            raise common.UserError(f"--gt {gt}: no such bag file or folder")
+        from gsjax.data.rosbag import read_bag_trajectory
+
+        return (*read_bag_trajectory(gt, *gt_frames), None)
     if gt.is_dir():
         if dataset is None:
             raise common.UserError(
@@ -57,7 +70,7 @@ def run(args) -> int:
         raise common.UserError(f"--est {args.est}: no such file")
     if not (np.isfinite(args.max_dt) and args.max_dt >= 0):
         raise common.UserError(f"--max-dt must be a number >= 0, got {args.max_dt}")
-    gt_t, gt_c2w, gt_valid = _read_ground_truth(args.gt, args.dataset)
+    gt_t, gt_c2w, gt_valid = _read_ground_truth(args.gt, args.dataset, args.gt_frames)
     est_t, est_c2w = read_tum_trajectory(args.est)
     metrics = evaluate_trajectory(
         est_t, est_c2w, gt_t, gt_c2w, gt_valid=gt_valid, max_dt=args.max_dt, with_scale=args.scale
