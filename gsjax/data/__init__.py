@@ -53,7 +53,8 @@ def open_sequence(
 
     Args:
       dataset: "tum", "replica", "scannet", "7scenes", "rosbag" (a ROS 1 ``.bag`` file or a ROS 2 bag folder,
-        :mod:`gsjax.data.rosbag`), or "synthetic": the ray-cast room
+        :mod:`gsjax.data.rosbag`), "realsense" (a RealSense SDK recording, ``.db3`` or ``.bag``,
+        :mod:`gsjax.data.realsense`), or "synthetic": the ray-cast room
         (:mod:`gsjax.data.synthetic`, 160x120 before ``downscale``, :data:`SYNTHETIC_FRAMES` frames unless
         ``max_frames`` says otherwise; ``stride`` speeds its motion up; no path, camera or depth-scale overrides).
       path: the sequence directory (TUM: the one holding rgb.txt; Replica: the scene folder holding results/).
@@ -70,7 +71,8 @@ def open_sequence(
         (7-Scenes; see :mod:`gsjax.data.sevenscenes`); False reads colour as stored.
       sensor_noise, seed: synthetic only: Kinect-like sensor effects (:meth:`SyntheticConfig.with_sensor_noise`)
         and their seed.
-      bag: rosbag only: its topics, pairing tolerance and ground truth (:class:`gsjax.data.rosbag.BagOptions`).
+      bag: rosbag and realsense: the topics (rosbag), the pairing tolerance and the ground truth
+        (:class:`gsjax.data.rosbag.BagOptions`).
 
     Returns:
       A :class:`Sequence` whose ``intrinsics`` are the downscaled ones.
@@ -100,6 +102,11 @@ def open_sequence(
     if bag is not None and dataset not in BAGS:
         raise ValueError(f"bag options apply to {', '.join(BAGS)} only")
     path = Path(path)
+    if dataset == "realsense":
+        from gsjax.data.realsense import open_realsense
+
+        return open_realsense(path, bag or BagOptions(), intrinsics=intrinsics, depth_scale=depth_scale, start=start,
+                              stride=stride, max_frames=max_frames, downscale=downscale)
     if dataset in BAGS:
         return open_rosbag(path, bag or BagOptions(), intrinsics=intrinsics, depth_scale=depth_scale, start=start,
                            stride=stride, max_frames=max_frames, downscale=downscale)

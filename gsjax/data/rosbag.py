@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import threading
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from gsjax.camera import Intrinsics, invert_transform, make_intrinsics, quaternion_wxyz_to_rotation
+from gsjax.data.bag_db3 import Db3Reader
 from gsjax.data.bag_images import BagCamera, Undistorter, camera_from_info, decode_color, decode_depth, is_depth_image
 from gsjax.data.frame import DatasetError, DatasetWarning
 from gsjax.data.images import downscale_color, downscale_depth
@@ -70,11 +72,30 @@ def open_rosbag(path: str | Path, options: BagOptions = BagOptions(), *, intrins
     """
     if options.groundtruth is not None and options.gt_frames is not None:
         raise ValueError("give the ground truth as a TUM file or as /tf frames, not both")
-    bag = _BagFile(Path(path))
+    bag = BagFile(Path(path))
     rgb, depth, info = bag.choose_topics(options)
+
+    def camera(size: tuple[int, int]) -> tuple[Intrinsics, Callable | None]:
+        found, undistort = _camera(bag, info, intrinsics, size)
+        return found, None if undistort is None else (lambda c, d: (undistort.color(c), undistort.depth(d)))
+
+    return paired_sequence(bag, rgb, depth, camera, options, depth_scale=depth_scale, start=start, stride=stride,
+                           max_frames=max_frames, downscale=downscale)
+
+
+def paired_sequence(bag: BagFile, rgb: str, depth: str,
+                    camera: Callable[[tuple[int, int]], tuple[Intrinsics, Callable | None]], options: BagOptions, *,
+                    depth_scale: float | None, start: int, stride: int, max_frames: int | None, downscale: int,
+                    same_size: bool = True) -> Sequence:
+    """The colour and depth messages of ``rgb`` and ``depth`` paired by stamp, as a lazily read :class:`Sequence`.
+
+    ``camera(depth size)`` -> (the frames' intrinsics at the stored size, and a function that maps a decoded
+    (colour, depth metres) pair into that camera, or None); ``depth_scale``: depth units per metre (None: 16-bit
+    depth in millimetres, float depth in metres);
+    ``same_size``: refuse colour and depth of different sizes (False when ``camera``'s function aligns them)."""
     color_log, color_stamps, color_size = bag.scan(rgb)
     depth_log, depth_stamps, depth_size = bag.scan(depth)
-    if color_size != depth_size:
+    if same_size and color_size != depth_size:
         raise DatasetError(f"{bag.path}: colour ({rgb}) is {color_size[1]}x{color_size[0]} but depth ({depth}) is "
                            f"{depth_size[1]}x{depth_size[0]} (WxH); record depth aligned to colour (e.g. RealSense's "
                            "aligned_depth_to_color topic) or resize one of them")
@@ -87,9 +108,9 @@ def open_rosbag(path: str | Path, options: BagOptions = BagOptions(), *, intrins
         warnings.warn(f"{bag.path}: paired {i.size} frames: {color_stamps.size - i.size} of {color_stamps.size} "
                       f"colour images ({rgb}) and {depth_stamps.size - j.size} of {depth_stamps.size} depth images "
                       f"({depth}) have no partner within {options.max_time_diff} s and are dropped", DatasetWarning,
-                      stacklevel=2)
+                      stacklevel=3)
     times = color_stamps[i] / 1e9
-    camera, undistort = _camera(bag, info, intrinsics, depth_size)
+    intrinsics, transform = camera(depth_size)
     c2w, valid = _ground_truth(bag, options, times)
     keep = select_indices(len(times), start=start, stride=stride, max_frames=max_frames)
     if keep.size == 0:
@@ -104,15 +125,15 @@ def open_rosbag(path: str | Path, options: BagOptions = BagOptions(), *, intrins
             depth_msg = bag.message_at(depth, pairs[n][1])
         color = decode_color(color_msg, f"{where[n]} ({rgb})")
         metres = decode_depth(depth_msg, depth_scale, f"{where[n]} ({depth})")
-        if color.shape[:2] != camera.shape or metres.shape != camera.shape:
+        if transform is not None:
+            color, metres = transform(color, metres)
+        if color.shape[:2] != intrinsics.shape or metres.shape != intrinsics.shape:
             raise DatasetError(f"{where[n]}: images {color.shape[1]}x{color.shape[0]} / {metres.shape[1]}x"
-                               f"{metres.shape[0]}, the camera expects {camera.width}x{camera.height}")
-        if undistort is not None:
-            color, metres = undistort.color(color), undistort.depth(metres)
+                               f"{metres.shape[0]}, the camera expects {intrinsics.width}x{intrinsics.height}")
         return downscale_color(color, downscale), downscale_depth(metres, downscale)
 
     return Sequence(name=bag.path.stem if bag.path.is_file() else bag.path.name,
-                    intrinsics=camera if downscale == 1 else camera.downscaled(downscale),
+                    intrinsics=intrinsics if downscale == 1 else intrinsics.downscaled(downscale),
                     timestamps=times[keep], c2w=c2w[keep], pose_valid=valid[keep], read_rgbd=read_rgbd,
                     depth_scale=1000.0 if depth_scale is None else float(depth_scale))
 
@@ -121,7 +142,7 @@ def _span(stamps: np.ndarray) -> str:
     return f"{stamps.min() / 1e9:.3f}-{stamps.max() / 1e9:.3f} s" if stamps.size else "none"
 
 
-class _BagFile:
+class BagFile:
     """An open bag: its connections by topic, the first message of each, and messages fetched by time."""
 
     def __init__(self, path: Path):
@@ -135,9 +156,13 @@ class _BagFile:
             raise DatasetError(f"{path}: not a ROS bag (expected a ROS 1 .bag file or a ROS 2 bag folder)")
         if path.is_dir() and not (path / "metadata.yaml").is_file():
             raise DatasetError(f"{path}: not a ROS 2 bag folder (no metadata.yaml); a ROS 1 bag is a .bag file")
+        bare_db3 = path.suffix == ".db3" and not (path.parent / "metadata.yaml").is_file()  # RealSense's .db3
         try:
-            self.reader = AnyReader([bag_path])
-            self.reader.open()
+            if bare_db3:
+                self.reader: Any = Db3Reader(path)
+            else:
+                self.reader = AnyReader([bag_path])
+                self.reader.open()
         except Exception as error:  # rosbags raises its own errors, or a decoder's, for a damaged file
             raise DatasetError(f"{path}: cannot be read as a ROS bag (truncated or damaged? {error})") from None
         self.topics: dict[str, list] = {}
@@ -221,7 +246,7 @@ def _decoded_size(msg: Any, topic: str) -> tuple[int, int]:
     return int(image.shape[0]), int(image.shape[1])
 
 
-def _camera(bag: _BagFile, info: str | None, given: GivenIntrinsics,
+def _camera(bag: BagFile, info: str | None, given: GivenIntrinsics,
             size: tuple[int, int]) -> tuple[Intrinsics, Undistorter | None]:
     """The camera at the stored size, and the undistortion its CameraInfo asks for (none with ``given``)."""
     height, width = size
@@ -244,7 +269,7 @@ def _camera(bag: _BagFile, info: str | None, given: GivenIntrinsics,
         Undistorter(camera) if camera.distorted else None)
 
 
-def _ground_truth(bag: _BagFile, options: BagOptions, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _ground_truth(bag: BagFile, options: BagOptions, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if options.groundtruth is not None:
         path = Path(options.groundtruth)
         if not path.is_file():
@@ -267,7 +292,7 @@ def _ground_truth(bag: _BagFile, options: BagOptions, times: np.ndarray) -> tupl
 def read_bag_trajectory(path: str | Path, parent: str, child: str) -> tuple[np.ndarray, np.ndarray]:
     """The bag's ground truth: (stamps [N] s, camera-to-world [N, 4, 4]) of the ``/tf`` transform ``parent ->
     child``, sorted by stamp; DatasetError naming the bag when there is none."""
-    bag = _BagFile(Path(path))
+    bag = BagFile(Path(path))
     stamps, poses = _tf_poses(bag, parent, child)
     if not stamps.size:
         raise DatasetError(f"{bag.path}: no /tf transform between {parent} and {child}")
@@ -275,7 +300,7 @@ def read_bag_trajectory(path: str | Path, parent: str, child: str) -> tuple[np.n
     return stamps[order], poses[order]
 
 
-def _tf_poses(bag: _BagFile, parent: str, child: str) -> tuple[np.ndarray, np.ndarray]:
+def _tf_poses(bag: BagFile, parent: str, child: str) -> tuple[np.ndarray, np.ndarray]:
     """(stamps [N] s, transforms parent <- child [N, 4, 4]) of the bag's /tf and /tf_static (either direction)."""
     from gsjax.data.bag_images import stamp_ns
 

@@ -259,7 +259,7 @@ def test_depth_encodings_and_units():
 
 def test_bag_flags_belong_to_bags(tmp_path, capsys):
     assert main(["run", "--out", str(tmp_path / "r"), "--dataset", "synthetic", "--rgb-topic", "/x"]) == 2
-    assert "--rgb-topic applies to --dataset rosbag only" in capsys.readouterr().err
+    assert "--rgb-topic applies to --dataset rosbag or realsense only" in capsys.readouterr().err
     assert main(["run", "--out", str(tmp_path / "r"), "--dataset", "rosbag", "--path", str(tmp_path / "nope.bag")]) \
         == 2
     assert "no such bag file or folder" in capsys.readouterr().err

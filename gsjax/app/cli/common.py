@@ -77,7 +77,8 @@ def add_sequence_flags(p) -> None:
     """The flags that choose the sequence, its camera and the config (shared by run, sweep and landscape)."""
     p.add_argument("--dataset", choices=DATASETS + BAGS + (SYNTHETIC,), required=True)
     p.add_argument("--path", type=Path, default=None,
-                   help="dataset directory; for rosbag a ROS 1 .bag file or a ROS 2 bag folder (not for synthetic)")
+                   help="dataset directory; for rosbag a ROS 1 .bag file or a ROS 2 bag folder, for realsense the "
+                        "SDK's .db3 or .bag recording (not for synthetic)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument("--preset", choices=PRESETS, default="cpu", help="configuration preset (default cpu)")
     p.add_argument("--cbknn", choices=CBKNN_MODES, default="off", help="CB-KNN mode (default off = SplaTAM)")
@@ -97,7 +98,7 @@ def add_sequence_flags(p) -> None:
 
 def add_bag_flags(p) -> None:
     """The flags of a ROS bag (``--dataset rosbag``): its topics, the pairing tolerance, the ground truth."""
-    bag = p.add_argument_group("ROS bags (--dataset rosbag)")
+    bag = p.add_argument_group("ROS bags and RealSense recordings (--dataset rosbag, realsense)")
     bag.add_argument("--rgb-topic", default=None, help="colour topic (default: the bag's one colour image topic)")
     bag.add_argument("--depth-topic", default=None, help="depth topic (default: the bag's one depth image topic)")
     bag.add_argument("--camera-info-topic", default=None,
@@ -143,6 +144,10 @@ def bag_options(args):
         return None
     if args.groundtruth is not None and args.gt_frames is not None:
         raise UserError("give the ground truth with --groundtruth FILE or --gt-frames PARENT,CHILD, not both")
+    topics = [flag for flag in ("--rgb-topic", "--depth-topic", "--camera-info-topic") if flag in given]
+    if args.dataset == "realsense" and topics:
+        raise UserError(f"{topics[0]} applies to --dataset rosbag; a RealSense recording's streams are found by "
+                        "the SDK's own topic names")
     return BagOptions(args.rgb_topic, args.depth_topic, args.camera_info_topic, args.max_time_diff, args.groundtruth,
                       args.gt_frames)
 
