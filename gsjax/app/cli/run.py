@@ -31,10 +31,113 @@ def add(sub) -> None:
                    help="the viewer's address (default 127.0.0.1: this machine only)")
     p.add_argument("--viewer-port", type=common.port, default=8080, metavar="PORT",
                    help="the viewer's port (default 8080; the next free one if taken; 0: any free port)")
+    p.add_argument("--realtime", action="store_true",
+                   help="--dataset realsense: play the recording in real time through the live camera's path (frames "
+                        "SLAM cannot keep up with are dropped and counted), as --path live runs a camera")
     p.set_defaults(func=run, accepts_overrides=True)
 
 
+LIVE_FRAMES = 3000  # --path live stops after this many processed frames unless --max-frames says otherwise
+
+
+def run_live(args) -> int:
+    """``--dataset realsense --path live`` (a camera) or ``--path REC --realtime``: SLAM as frames come."""
+    import signal
+    import threading
+
+    from gsjax.app.live_camera import LIVE, LiveCamera
+    from gsjax.app.live_run import run_live as run_frames
+    from gsjax.app.run_dir import check_run_dir
+    from gsjax.app.run_outputs import summary_lines
+    from gsjax.app.runner import RunOptions
+    from gsjax.slam.presets import working_downscale
+
+    if args.resume:
+        raise common.UserError("--resume: a live camera cannot be re-read; start a new run (--out, --overwrite)")
+    for flag, value in (("--stride", args.stride != 1), ("--intrinsics", args.intrinsics is not None),
+                        ("--depth-scale", args.depth_scale is not None), ("--groundtruth", args.groundtruth)):
+        if value:
+            raise common.UserError(f"{flag} does not apply to a live camera (--path live / --realtime)")
+    check_run_dir(args.out, overwrite=args.overwrite)
+    options = RunOptions(out=args.out, chunk=1, checkpoint_every=1, seed=args.seed, overwrite=args.overwrite,
+                         eval_every=args.eval_every, progress=False)
+    try:
+        camera = LiveCamera(LIVE if str(args.path) == LIVE else args.path)
+    except ImportError as error:
+        raise common.UserError(str(error)) from None
+    factor = args.downscale or working_downscale(args.preset, camera.intrinsics.width)
+    config = common.configure(args, camera.intrinsics.width // factor)
+    frames = args.max_frames or LIVE_FRAMES
+    print(f"gsjax run: {camera.source} ({camera.intrinsics.width}x{camera.intrinsics.height}, downscale {factor}), "
+          f"preset {args.preset}, up to {frames} frames; Ctrl-C or SIGTERM stops and writes the outputs", flush=True)
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    describe = dict(dataset=args.dataset, path=str(args.path), preset=args.preset, cbknn=args.cbknn,
+                    downscale=factor, overrides=args.overrides, realtime=True)
+    view = _live_viewer(args, camera, config, factor, frames) if args.viewer else None
+    try:
+        metrics = run_frames(camera, config, options, downscale=factor, max_frames=frames, describe=describe,
+                             stop=stop, observe=view.update if view else None)
+        for line in summary_lines(metrics, args.out):
+            print(line)
+        if view:
+            from gsjax.viewer import wait_for_stop
+
+            view.finished(metrics)
+            signal.signal(signal.SIGTERM, signal.default_int_handler)
+            print(f"viewer: {view.url} shows the finished run; Ctrl-C or SIGTERM stops it", flush=True)
+            print(f"viewer stopped ({wait_for_stop()})", flush=True)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        if view:
+            view.stop()
+    return 0
+
+
+class _EveryFifth:
+    """The live viewer, updated every fifth frame (each update copies the map to the host)."""
+
+    def __init__(self, viewer):
+        self.viewer, self.url, self.calls = viewer, viewer.url, 0
+
+    def update(self, state, outputs) -> None:
+        self.calls += 1
+        if self.calls % 5 == 1:
+            self.viewer.update(state, outputs)
+
+    def finished(self, metrics) -> None:
+        self.viewer.finished(metrics)
+
+    def stop(self) -> None:
+        self.viewer.stop()
+
+
+def _not_kept(index: int):
+    raise IndexError(f"live frame {index} is not kept for the viewer")
+
+
+def _live_viewer(args, camera, config, factor: int, frames: int):
+    import numpy as np
+
+    from gsjax.data.sequence import Sequence
+    from gsjax.viewer.live import LiveViewer
+    from gsjax.viewer.scene import check_listen_address
+
+    check_listen_address(args.viewer_host)
+    k = camera.intrinsics if factor == 1 else camera.intrinsics.downscaled(factor)
+    frames_so_far = Sequence(name=str(args.path), intrinsics=k, timestamps=np.arange(frames, dtype=np.float64),
+                             c2w=np.tile(np.eye(4), (frames, 1, 1)), pose_valid=np.zeros(frames, bool),
+                             read_rgbd=_not_kept)
+    view = _EveryFifth(LiveViewer(frames_so_far, config, host=args.viewer_host, port=args.viewer_port))
+    print(f"viewer: {view.url} (updated every fifth frame)", flush=True)
+    return view
+
+
 def run(args) -> int:
+    if args.dataset == "realsense" and (str(args.path) == "live" or args.realtime):
+        return run_live(args)
+    if args.realtime:
+        raise common.UserError("--realtime plays a RealSense recording as a camera: --dataset realsense --path REC")
     from gsjax.app.run_dir import check_run_dir
     from gsjax.app.run_outputs import summary_lines
     from gsjax.app.runner import RunOptions, run_slam

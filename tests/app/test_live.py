@@ -1,0 +1,72 @@
+"""The live path (issue 39, part 3) through the RealSense SDK's own playback in real time: a recording played as if
+it were a camera goes through the same pipeline, frames SLAM cannot keep up with are dropped and counted (never an
+unbounded queue), and SIGTERM stops the run with every output written."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+
+import pytest
+
+from gsjax.app.cli import main
+from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+from tests.support.tiny_slam import HEIGHT, TINY_OVERRIDES, WIDTH
+
+pytest.importorskip("pyrealsense2")
+TINY = [token for name, value in TINY_OVERRIDES.items() for token in (f"--{name}", value)]
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    from gsjax.data.realsense_write import write_realsense
+
+    path = tmp_path_factory.mktemp("live") / "room.db3"
+    write_realsense(synthetic_sequence(SyntheticConfig(width=WIDTH, height=HEIGHT, num_frames=60)), path)
+    return path
+
+
+def live_result(out):
+    metrics = json.loads((out / "metrics.json").read_text())
+    live = json.loads((out / "config.json").read_text())["live"]
+    return metrics, live
+
+
+def test_a_recording_played_in_real_time_drops_what_slam_cannot_keep_up_with(recording, tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", "--dataset", "realsense", "--path", str(recording), "--realtime", "--out", str(out),
+                 *TINY]) == 0
+    capsys.readouterr()
+    metrics, live = live_result(out)
+    for name in ("trajectory.txt", "map.ply", "report.html"):
+        assert (out / name).is_file()
+    # The first frame waits for the SLAM step to compile (seconds) while the playback goes on at 30 fps.
+    assert live["dropped"] > 0 and metrics["frames"] >= 1
+    assert metrics["frames"] + live["dropped"] == live["captured"] <= 60  # every captured frame accounted for
+    assert f"live: {live['dropped']} of {live['captured']} captured frames were dropped" in metrics["warnings"][0]
+
+
+def test_sigterm_stops_a_live_run_and_writes_its_outputs(recording, tmp_path, capsys):
+    out = tmp_path / "run"
+    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGTERM))  # the step compiled already
+    timer.start()
+    try:
+        assert main(["run", "--dataset", "realsense", "--path", str(recording), "--realtime", "--out", str(out),
+                     *TINY]) == 0
+    finally:
+        timer.cancel()
+    capsys.readouterr()
+    metrics, live = live_result(out)
+    assert live["captured"] < 55  # stopped a second in, not at the end of the 2-second recording
+    assert metrics["frames"] >= 1 and (out / "trajectory.txt").is_file() and (out / "map.ply").is_file()
+    assert signal.getsignal(signal.SIGTERM) is not None  # the run restored the handler it replaced
+
+
+def test_live_flags_that_do_not_apply_are_refused(recording, tmp_path, capsys):
+    assert main(["run", "--dataset", "realsense", "--path", str(recording), "--realtime", "--resume",
+                 "--out", str(tmp_path / "r")]) == 2
+    assert "a live camera cannot be re-read" in capsys.readouterr().err
+    assert main(["run", "--dataset", "synthetic", "--realtime", "--out", str(tmp_path / "r")]) == 2
+    assert "--realtime plays a RealSense recording" in capsys.readouterr().err
