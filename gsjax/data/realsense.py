@@ -142,8 +142,9 @@ def _stream_camera(bag: BagFile, image_topic: str) -> Intrinsics:
 def _depth_units_per_metre(bag: BagFile, depth_topic: str) -> float:
     """1 / the recorded ``Depth_Units`` option (metres per unit) of the depth sensor; 1000 (mm) when absent."""
     sensor = re.match(r"(/device_\d+/sensor_\d+)/", depth_topic).group(1)  # type: ignore[union-attr]
-    topic = f"{sensor}/option/Depth_Units/value"
-    if topic not in bag.topics:
+    names = [f"{sensor}/option/{name}/value" for name in ("Depth_Units", "Depth Units")]  # newer, older SDKs
+    topic = next((name for name in names if name in bag.topics), None)
+    if topic is None:
         return 1000.0
     value = _number(bag.first(topic))
     if not value > 0:

@@ -70,3 +70,13 @@ def test_live_flags_that_do_not_apply_are_refused(recording, tmp_path, capsys):
     assert "a live camera cannot be re-read" in capsys.readouterr().err
     assert main(["run", "--dataset", "synthetic", "--realtime", "--out", str(tmp_path / "r")]) == 2
     assert "--realtime plays a RealSense recording" in capsys.readouterr().err
+
+
+def test_no_camera_is_one_clear_error(tmp_path, capsys):
+    import pyrealsense2 as rs
+
+    if len(rs.context().query_devices()):
+        pytest.skip("a RealSense camera is connected")
+    assert main(["run", "--dataset", "realsense", "--path", "live", "--out", str(tmp_path / "cam")]) == 2
+    assert "--path live: no RealSense camera is connected" in capsys.readouterr().err
+    assert not (tmp_path / "cam" / "metrics.json").exists()
