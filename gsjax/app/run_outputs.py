@@ -270,6 +270,7 @@ def summary_lines(metrics: RunMetrics, out: Path) -> list[str]:
     if metrics.frames_per_s:
         lines.append(f"{metrics.frames} frames, {metrics.seconds_per_frame:.2f} s/frame, "
                      f"{metrics.num_gaussians} Gaussians")
+    checkpoints = " checkpoints/" if metrics.checkpoints is not None else ""  # a live run writes none
     lines.append(f"outputs in {Path(out).resolve()}: report.html trajectory.txt metrics.json trajectory.png renders/ "
-                 "map.ply config.json checkpoints/")
+                 f"map.ply config.json{checkpoints}")
     return lines
