@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo -n)
 APT    := DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get -y -q
 
-.PHONY: install chromium demo lint test test-slow bench gpu-aot clean config-reference
+.PHONY: install chromium demo lint test test-slow bench gpu-aot clean config-reference docs
 
 install: $(STAMP)
 
@@ -15,7 +15,7 @@ install: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -c constraints.txt -e '.[test]'
+	$(BIN)/pip install -q -c constraints.txt -e '.[test,docs]'
 	touch $(STAMP)
 
 # The browser tests (tests/viewer/test_ui_browser.py) drive Debian's Chromium; installed here when missing.
@@ -34,13 +34,18 @@ demo: install
 # at a time so its module fixtures are built once; TEST_WORKERS=0: one process). (LLVM at -O0 compiled 25 % faster
 # but broke the bitwise CB-KNN-equals-canonical tests: not used.)
 TEST_WORKERS ?= 2
-test: install chromium lint
+test: install chromium lint docs
 	$(BIN)/python -m pytest -q -m "not slow" $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile) tests
 
 # ruff and mypy (both configured in pyproject.toml; mypy on the core and the evaluation); `make test` runs them first.
 lint: install
 	$(BIN)/ruff check .
 	$(BIN)/mypy
+
+# The documentation site (mkdocs.yml, docs/): strict, so a broken link, a missing reference or a docstring that does
+# not render fails the build; `make test` builds it (about 5 s). The site goes to site/ (not in git).
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
 
 # The config reference (every field's unit, static/traced, bounds, default per preset, meaning) is generated from the
 # field declarations; tests/test_config_fields.py fails when the committed file differs.

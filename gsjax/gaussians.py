@@ -131,7 +131,7 @@ def check_gaussians(gaussians: Gaussians, name: str = "gaussians") -> None:
     """Shape/dtype checks (always) and finiteness of active slots (only for concrete arrays).
 
     Raises:
-      ValueError naming the offending field.
+      ValueError: naming the offending field.
     """
     if not isinstance(gaussians, Gaussians):
         raise ValueError(f"{name} must be a gsjax.gaussians.Gaussians, got {type(gaussians).__name__}")

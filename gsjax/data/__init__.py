@@ -69,8 +69,8 @@ def open_sequence(
         Replica 6553.5).
       register_color: resample colour into the depth camera where the reader knows the two are not registered
         (7-Scenes; see :mod:`gsjax.data.sevenscenes`); False reads colour as stored.
-      sensor_noise, seed: synthetic only: Kinect-like sensor effects (:meth:`SyntheticConfig.with_sensor_noise`)
-        and their seed.
+      sensor_noise: synthetic only: Kinect-like sensor effects (:meth:`SyntheticConfig.with_sensor_noise`).
+      seed: synthetic only: the sensor effects' seed.
       bag: rosbag and realsense: the topics (rosbag), the pairing tolerance and the ground truth
         (:class:`gsjax.data.rosbag.BagOptions`).
 
@@ -78,13 +78,13 @@ def open_sequence(
       A :class:`Sequence` whose ``intrinsics`` are the downscaled ones.
 
     Raises:
-      DatasetError (a ValueError) naming the file, for anything missing, unreadable or inconsistent; checks of
-      listings and poses happen here, checks of image contents when a frame is read.
+      DatasetError: (a ValueError) naming the file, for anything missing, unreadable or inconsistent; checks of
+        listings and poses happen here, checks of image contents when a frame is read.
 
     Warns:
-      DatasetWarning naming the file, for what is handled in a defined way: list files out of order (sorted) or
-      with repeated timestamps (repeats dropped), unpaired TUM images (skipped), ground-truth poses that are not
-      finite or not rigid (left out of the evaluation).
+      DatasetWarning: naming the file, for what is handled in a defined way: list files out of order (sorted) or
+        with repeated timestamps (repeats dropped), unpaired TUM images (skipped), ground-truth poses that are not
+        finite or not rigid (left out of the evaluation).
     """
     if dataset == SYNTHETIC:
         if path is not None or intrinsics is not None or depth_scale is not None or start:

@@ -186,7 +186,8 @@ def ate_rmse_c2w(
     """ATE as evo reports it: RMSE (m) of camera centres after aligning the estimate onto the ground truth.
 
     Args:
-      est_c2w, gt_c2w: [N, 4, 4] camera-to-world poses (m), frame i of one matching frame i of the other.
+      est_c2w: [N, 4, 4] estimated camera-to-world poses (m), frame i matching frame i of ``gt_c2w``.
+      gt_c2w: [N, 4, 4] ground-truth camera-to-world poses (m).
       valid: optional [N] bool; frames with False, or with non-finite GT, are skipped.
       with_scale: similarity (Umeyama) instead of rigid (Horn) alignment, for scale-free estimates.
     """

@@ -102,7 +102,7 @@ def read_ply(path: str | os.PathLike, capacity: int | None = None) -> Gaussians:
       capacity: number of slots of the returned map (default: the number of Gaussians in the file).
 
     Raises:
-      ValueError naming the file if it is malformed, lacks a required property, or holds anisotropic Gaussians.
+      ValueError: naming the file if it is malformed, lacks a required property, or holds anisotropic Gaussians.
     """
     path = Path(path)
     data = path.read_bytes()

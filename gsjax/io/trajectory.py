@@ -29,8 +29,9 @@ def read_tum_trajectory(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray
       (timestamps [N] float64 seconds, c2w [N, 4, 4] float64 metres).
 
     Raises:
-      FileNotFoundError if the file is missing; ValueError naming the file and line for a malformed line, a zero
-      quaternion or a timestamp that does not increase.
+      FileNotFoundError: if the file is missing.
+      ValueError: naming the file and line for a malformed line, a zero quaternion or a timestamp that does not
+        increase.
     """
     path = Path(path)
     stamps: list[float] = []

@@ -115,7 +115,7 @@ def record_two_cameras(path, depth_size, depth_focal, color_size, color_focal, f
 
 def sdk_aligned(path):
     """The frames' depth aligned to colour by the SDK (playback, not in real time) -> {frame number: [H, W] raw
-    units}. (The SDK's frame syncer may drop a frame of a short recording: those that came are compared.)"""
+    units}. (Under load the SDK's frame syncer drops frames of a short recording: those that came are compared.)"""
     config = rs.config()
     config.enable_device_from_file(str(path), repeat_playback=False)
     pipeline = rs.pipeline()
@@ -138,11 +138,11 @@ def sdk_aligned(path):
 ])
 def test_depth_is_aligned_to_colour_as_the_sdk_aligns_it(tmp_path, depth_size, depth_focal, color_size,
                                                          color_focal):
-    path = record_two_cameras(tmp_path / "two.db3", depth_size, depth_focal, color_size, color_focal)
+    path = record_two_cameras(tmp_path / "two.db3", depth_size, depth_focal, color_size, color_focal, frames=6)
     ours = open_sequence("realsense", path)
     assert (ours.intrinsics.width, ours.intrinsics.height) == color_size  # frames in the colour camera
     theirs = sdk_aligned(path)
-    assert len(ours) == 3 and len(theirs) >= 2 and set(theirs) <= {0, 1, 2}
+    assert len(ours) == 6 and theirs and set(theirs) <= set(range(6))  # the SDK's syncer may drop a few
     for i, aligned in theirs.items():
         depth = ours.read_host(i).depth
         np.testing.assert_array_equal(depth, aligned.astype(np.float32) / np.float32(1000.0))
