@@ -1,0 +1,55 @@
+"""The documentation site in a real browser (headless Chromium): the home page, the API page of
+``gsjax.raster.render`` and a tutorial load with no console error, no request outside the site and the tutorial's
+figures drawn. Uses ``site/`` as ``make docs`` builds it (``make test`` builds it first)."""
+
+from __future__ import annotations
+
+import functools
+import http.server
+import threading
+from pathlib import Path
+
+import pytest
+
+from gsjax.viewer.browser import chromium_path, launch, open_page
+
+SITE = Path(__file__).resolve().parents[1] / "site"
+
+
+@pytest.fixture(scope="module")
+def served():
+    if not (SITE / "index.html").is_file():
+        pytest.skip("no built site: `make docs` builds it (and `make test` does first)")
+    if chromium_path() is None:
+        pytest.skip("no Chromium (see tests/viewer/test_ui_browser.py)")
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(SITE))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = launch(playwright)
+        yield browser, f"http://127.0.0.1:{server.server_address[1]}/"
+        browser.close()
+    server.shutdown()
+
+
+@pytest.mark.parametrize("page_path, expect", [
+    ("", "gsjax"),
+    ("reference/api/raster/", "gsjax.raster.render.render"),
+    ("tutorials/render_and_grad/", "jax.grad"),
+])
+def test_a_page_of_the_site_loads_cleanly(served, page_path, expect):
+    browser, root = served
+    page, log = open_page(browser, root + page_path, allowed=(root, "data:", "blob:"))
+    try:
+        page.wait_for_load_state("networkidle")
+        assert expect in page.content()
+        assert not log.errors and not log.exceptions and not log.outside, (log.errors, log.exceptions, log.outside)
+        if page_path.startswith("tutorials/"):
+            figures = page.locator("img[src^='data:image/png']")
+            assert figures.count() >= 2
+            assert all(figures.nth(i).evaluate("img => img.naturalWidth > 0") for i in range(figures.count()))
+    finally:
+        page.context.close()
