@@ -1,4 +1,4 @@
-"""The README's tracking table from fresh runs, and the ATE bounds the slow suite holds them to.
+"""The user guide's tracking table (docs/guide.md) from fresh runs, and the ATE bounds the slow suite holds them to.
 
     python experiments/tracking_table.py --work /tmp/gsjax_tracking [--rows synthetic,7scenes_40] [--update-readme]
 
@@ -6,7 +6,7 @@ Each row is ``gsjax run --preset cpu`` on one sequence, CB-KNN off and paper. Ru
 (outside git). A run already finished there with the same options is reused: ``--resume`` on a finished run only
 re-evaluates it (and refuses other options), so ``make test-slow`` with ``GSJAX_SLOW_WORK=DIR`` followed by this
 script with ``--work DIR`` measures each run once. Writes ``experiments/results/tracking_table.md`` and ``.json``;
-``--update-readme`` replaces the table under "## Measured tracking" in README.md.
+``--update-readme`` replaces the table under "## Measured tracking" in the user guide (docs/guide.md).
 
 The rows, their ATE bounds and the run of one row are here, shared with the slow suite
 (``tests/app/test_slow_tracking.py`` imports this file and holds every run under its bound). ``BOUNDS_CM`` sit a
@@ -127,7 +127,7 @@ def markdown(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def update_readme(table: str, readme: Path = ROOT / "README.md") -> None:
+def update_readme(table: str, readme: Path = ROOT / "docs" / "guide.md") -> None:
     text = readme.read_text()
     pattern = re.compile(r"(## Measured tracking[^\n]*\n\n)(\|.*?\n)(?=\n)", re.S)
     if not pattern.search(text):
