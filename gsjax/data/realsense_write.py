@@ -37,8 +37,8 @@ def write_realsense(sequence: Sequence, path: str | Path, *, depth_units: float 
     k = sequence.intrinsics
     device = rs.software_device()
     depth_sensor, color_sensor = device.add_sensor("Depth"), device.add_sensor("Color")
-    depth_profile = depth_sensor.add_video_stream(_stream(rs, k, rs.stream.depth, rs.format.z16, 2, 0))
-    color_profile = color_sensor.add_video_stream(_stream(rs, k, rs.stream.color, rs.format.rgb8, 3, 1))
+    depth_profile = depth_sensor.add_video_stream(video_stream(rs, k, rs.stream.depth, rs.format.z16, 2, 0))
+    color_profile = color_sensor.add_video_stream(video_stream(rs, k, rs.stream.color, rs.format.rgb8, 3, 1))
     depth_sensor.add_read_only_option(rs.option.depth_units, depth_units)
     identity = rs.extrinsics()
     identity.rotation, identity.translation = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0], [0.0, 0.0, 0.0]
@@ -75,7 +75,7 @@ def write_realsense(sequence: Sequence, path: str | Path, *, depth_units: float 
     return recorded_color_stamps(path)
 
 
-def _stream(rs, k, kind, fmt, bpp: int, uid: int):
+def video_stream(rs, k, kind, fmt, bpp: int, uid: int):
     intrinsics = rs.intrinsics()
     intrinsics.width, intrinsics.height = k.width, k.height
     intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy = float(k.fx), float(k.fy), float(k.cx), float(k.cy)

@@ -30,7 +30,15 @@ import numpy as np
 
 from gsjax.camera import Intrinsics, invert_transform, make_intrinsics, quaternion_wxyz_to_rotation
 from gsjax.data.bag_db3 import Db3Reader
-from gsjax.data.bag_images import BagCamera, Undistorter, camera_from_info, decode_color, decode_depth, is_depth_image
+from gsjax.data.bag_images import (
+    BagCamera,
+    Undistorter,
+    camera_from_info,
+    decode_color,
+    decode_depth,
+    is_depth_image,
+    stamp_ns,
+)
 from gsjax.data.frame import DatasetError, DatasetWarning
 from gsjax.data.images import downscale_color, downscale_depth
 from gsjax.data.listing import GivenIntrinsics, select_indices
@@ -224,8 +232,6 @@ class BagFile:
     def scan(self, topic: str) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
         """(log times [N] int64 ns, header stamps [N] int64 ns sorted by stamp, image size (H, W)) of ``topic``'s
         messages; reads each message once, keeps none."""
-        from gsjax.data.bag_images import stamp_ns
-
         log, stamps = [], []
         for connection, timestamp, raw in self.reader.messages(connections=self.topics[topic]):
             log.append(timestamp)
@@ -302,8 +308,6 @@ def read_bag_trajectory(path: str | Path, parent: str, child: str) -> tuple[np.n
 
 def _tf_poses(bag: BagFile, parent: str, child: str) -> tuple[np.ndarray, np.ndarray]:
     """(stamps [N] s, transforms parent <- child [N, 4, 4]) of the bag's /tf and /tf_static (either direction)."""
-    from gsjax.data.bag_images import stamp_ns
-
     connections = [c for topic in ("/tf", "/tf_static") for c in bag.topics.get(topic, []) if c.msgtype == TF_TYPE]
     stamps, poses = [], []
     for connection, _, raw in bag.reader.messages(connections=connections) if connections else ():

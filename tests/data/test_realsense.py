@@ -64,14 +64,12 @@ def test_slam_on_a_recording_gives_the_bag_s_trajectory(recording, tmp_path, cap
 
 def record_two_cameras(path, depth_size, depth_focal, color_size, color_focal, frames=3):
     """A software device with depth and colour of different cameras and a depth -> colour offset, recorded."""
+    from gsjax.camera import make_intrinsics
+    from gsjax.data.realsense_write import video_stream
+
     def stream(kind, fmt, bpp, uid, size, focal):
-        k = rs.intrinsics()
-        k.width, k.height, k.ppx, k.ppy, k.fx, k.fy = *size, (size[0] - 1) / 2, (size[1] - 1) / 2, focal, focal
-        k.model, k.coeffs = rs.distortion.none, [0.0] * 5
-        s = rs.video_stream()
-        s.type, s.fmt, s.index, s.uid = kind, fmt, 0, uid
-        s.width, s.height, s.fps, s.bpp, s.intrinsics = *size, 30, bpp, k
-        return s
+        k = make_intrinsics(focal, focal, (size[0] - 1) / 2, (size[1] - 1) / 2, size[1], size[0])
+        return video_stream(rs, k, kind, fmt, bpp, uid)
 
     device = rs.software_device()
     depth_sensor, color_sensor = device.add_sensor("Depth"), device.add_sensor("Color")
