@@ -1,4 +1,4 @@
-"""Figure: what CB-KNN does to a render of a noisy map (writes experiments/figures/cbknn_effect.png).
+"""Figure: what CB-KNN does to a render of a noisy map (writes docs/figures/cbknn_effect.png).
 
 A map is built from the synthetic room (frame 0, SplaTAM's one-Gaussian-per-pixel initialisation at opacity 0.9),
 then its parameters are perturbed as a SLAM map's are by noisy optimisation: centres jittered by 0.4 px-footprints,
@@ -6,7 +6,7 @@ colours by N(0, 0.08), a third of the Gaussians removed to open sparse holes. It
 canonically and with CB-KNN (paper settings: alpha 0.2 px, K0 5, beta 0.3, motion 0.5), and the figure shows both
 renders, their difference, the input, and the K and rho maps.
 
-    python experiments/cbknn_effect.py [--out experiments/figures/cbknn_effect.png]
+    python experiments/cbknn_effect.py [--out docs/figures/cbknn_effect.png]
 """
 
 from __future__ import annotations
@@ -43,7 +43,8 @@ def noisy_map(seed: int = 0):
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "figures" / "cbknn_effect.png")
+    figure = Path(__file__).resolve().parents[1] / "docs" / "figures" / "cbknn_effect.png"
+    parser.add_argument("--out", type=Path, default=figure)
     args = parser.parse_args(argv)
     gaussians, sequence = noisy_map()
     frame = sequence[5]

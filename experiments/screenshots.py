@@ -3,7 +3,7 @@
     python experiments/screenshots.py                       # runs the 7-Scenes sample (40 frames, CB-KNN paper) first
     python experiments/screenshots.py --run outputs/kitchen  # or shows an existing run
 
-Writes ``experiments/figures/report.png`` (the top of report.html), ``report_renders.png`` (its render-vs-input
+Writes ``docs/figures/report.png`` (the top of report.html), ``report_renders.png`` (its render-vs-input
 section), ``report_cbknn.png`` (its CB-KNN diagnostics, when the run had them) and ``viewer.png`` (``gsjax view``).
 """
 
@@ -18,7 +18,7 @@ from gsjax.viewer.browser import Process, decode, drawn_fraction, launch, open_p
 
 ROOT = Path(__file__).resolve().parents[1]
 
-FIGURES = ROOT / "experiments" / "figures"
+FIGURES = ROOT / "docs" / "figures"
 WIDTH, HEIGHT = 1280, 860
 
 
