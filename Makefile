@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo -n)
 APT    := DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get -y -q
 
-.PHONY: install chromium demo lint test test-slow bench gpu-aot clean config-reference docs
+.PHONY: install chromium demo lint test test-slow bench gpu-aot clean config-reference metrics-reference docs
 
 install: $(STAMP)
 
@@ -51,6 +51,11 @@ docs: install
 # field declarations; tests/test_config_fields.py fails when the committed file differs.
 config-reference: install
 	$(BIN)/gsjax config --reference docs/reference/config.md
+
+# The metrics.json reference (docs/reference/metrics.md) and its JSON Schema (metrics.schema.json) are generated from
+# RunMetrics; tests/app/test_metrics_reference.py fails when the committed files differ.
+metrics-reference: install
+	$(BIN)/python -m gsjax.app.metrics_reference docs/reference
 
 test-slow: install
 	$(BIN)/python -m pytest -q -m slow tests

@@ -16,8 +16,37 @@ from typing import Any
 
 @dataclasses.dataclass(frozen=True)
 class TrajectoryMetrics:
-    """:func:`gsjax.eval.trajectory.evaluate_trajectory`'s result (see it for the definitions; ``_m``, ``_cm``,
-    ``_deg`` name the units; None where undefined)."""
+    """:func:`gsjax.eval.trajectory.evaluate_trajectory`'s result: the estimate against the ground truth, camera
+    centres of camera-to-world poses in the ground truth's frame after alignment (``_m``, ``_cm``, ``_deg``, ``_s``
+    name the units; None where undefined).
+
+    Attributes:
+      ate_rmse_c2w_m: ATE, the RMSE of the camera centres after Horn/Umeyama alignment (evo_ape --align) (m).
+      ate_rmse_c2w_cm: the same in cm: the ATE gsjax reports.
+      ate_mean_c2w_m: the mean of the same per-frame camera-centre errors (m).
+      ate_max_c2w_m: the largest of them (m).
+      ate_splatam_mean_w2c_m: SplaTAM's "ATE RMSE": the mean error of world-to-camera translations after rigid
+        alignment, both trajectories relative to their first frame (m).
+      ate_splatam_mean_w2c_cm: the same in cm.
+      rpe_trans_rmse_m: RPE between consecutive evaluated frames, translation, RMSE (m).
+      rpe_trans_mean_m: the same, mean (m).
+      rpe_rot_rmse_deg: RPE, rotation angle, RMSE (deg).
+      rpe_rot_mean_deg: the same, mean (deg).
+      num_est_poses: estimated poses given.
+      num_gt_poses: ground-truth poses given.
+      num_associated: estimated poses with a ground-truth stamp within ``max_dt_s``.
+      num_unassociated_est: estimated poses without one.
+      num_skipped_invalid_gt: associated poses left out because their ground truth is not finite or not rigid.
+      num_evaluated: poses the ATE is computed on.
+      num_rpe_pairs: consecutive pairs the RPE is computed on.
+      max_dt_s: the association tolerance (s).
+      with_scale: whether the alignment also fits a scale (the SplaTAM variant stays rigid).
+      alignment: the alignment of the estimate onto the ground truth: ``rotation`` [3][3], ``translation_m`` [3],
+        ``scale``.
+      per_frame: the errors behind the statistics: ``est_index`` and ``ate_c2w_m`` (m) per evaluated estimate row;
+        ``rpe_est_index`` (the second row of each pair), ``rpe_trans_m`` (m) and ``rpe_rot_deg`` (deg) per RPE pair.
+      definitions: each metric's definition in words, by name.
+    """
 
     ate_rmse_c2w_m: float
     ate_rmse_c2w_cm: float
@@ -46,9 +75,16 @@ class TrajectoryMetrics:
 
 @dataclasses.dataclass(frozen=True)
 class RenderMetrics:
-    """SplaTAM's rendering metrics on the evaluation frames: ``frames`` [n]; ``per_frame`` [n] dicts of
-    ``psnr_db``, ``ssim``, ``ms_ssim``, ``ms_ssim_scales``, ``depth_l1_m``; ``mean`` their means plus
-    ``depth_l1_cm`` (None when no frame had usable depth)."""
+    """SplaTAM's rendering metrics on the evaluation frames (t = 0 and every ``eval_every``-th), the map rendered at
+    the estimated poses at the end of the run.
+
+    Attributes:
+      frames: the evaluated frame numbers [n].
+      mean: the means over those frames of ``psnr_db`` (dB), ``ssim``, ``ms_ssim``, ``ms_ssim_scales`` (the scales
+        MS-SSIM could use at this size) and ``depth_l1_m`` (m), plus ``depth_l1_cm`` (cm); None when no frame was
+        evaluated. ``depth_l1_*`` is None when no frame had usable depth.
+      per_frame: [n] the same metrics per evaluated frame (without ``depth_l1_cm``).
+    """
 
     frames: list[int] = dataclasses.field(default_factory=list)
     mean: dict[str, float] | None = None
@@ -61,9 +97,18 @@ class RenderMetrics:
 
 @dataclasses.dataclass(frozen=True)
 class CBKNNSummary:
-    """CB-KNN's parameters and, per sample frame, its statistics (``frame``, ``gamma``, ``k_mean``, ``k_min``,
-    ``k_max``, ``rho_max``, ``empty_cells``, ``mean_shift_px``, ``fraction_fewer_than_k``), when it smoothed
-    renders."""
+    """CB-KNN's parameters and its statistics on sample frames, for a run whose keyframe renders it smoothed.
+
+    Attributes:
+      mode: ``code_parity`` or ``paper`` (``cbknn.mode``).
+      alpha: the shift strength (``cbknn.params.alpha``; px in ``shift_mode`` pixels).
+      k0: the base number of neighbours (``cbknn.params.k0``).
+      beta: the motion coupling (``cbknn.params.beta``).
+      cell: the density grid's cell side (px).
+      samples: per sample frame: ``frame``, ``gamma`` (the motion used), ``k_mean``, ``k_min``, ``k_max`` (the
+        adaptive K over the pixels), ``rho_max`` (the largest density), ``empty_cells``, ``mean_shift_px`` (px)
+        and ``fraction_fewer_than_k`` (pixels with fewer than K contributors).
+    """
 
     mode: str
     alpha: float
@@ -75,7 +120,16 @@ class CBKNNSummary:
 
 @dataclasses.dataclass(frozen=True)
 class CheckpointSummary:
-    """The run's checkpoints: how many, how often (frames), their mean and largest time (s) and size (bytes)."""
+    """The run's checkpoints.
+
+    Attributes:
+      count: checkpoints the run wrote (a resumed run counts those its earlier processes wrote).
+      every_frames: ``--checkpoint-every`` (frames).
+      mean_s: mean time to write one (s).
+      max_s: the longest (s).
+      last_bytes: the last one's size (bytes; a checkpoint writes what is new since the previous one).
+      max_bytes: the largest one's size (bytes).
+    """
 
     count: int
     every_frames: int
@@ -90,19 +144,41 @@ class RunMetrics:
     """Everything ``metrics.json`` holds.
 
     Attributes:
-      dataset, frames, width, height: the input (frames processed; the working resolution in pixels).
-      trajectory: the trajectory errors, or None without ground truth (fewer than 3 valid GT poses).
-      constant_pose_ate_rmse_c2w_cm: the ATE of a camera that never moves (the baseline), or None.
-      render: rendering metrics; cbknn: CB-KNN's diagnostics, or None when it did not smooth renders.
-      frames_per_s, seconds_per_frame: SLAM throughput (compilation included), or None.
-      stage_timings_s: seconds per stage (``read_frames_s``, ``slam_s``, ``checkpoint_s``, ...).
-      num_gaussians, capacity, keyframes: the final map's active Gaussians, its slots, the keyframes stored.
-      nonfinite_*, frames_with_truncated_render, max_truncation_residual: numerical health counters.
-      skipped_frames, retried_frames, diverged_frames, keyframe_frames: frame numbers.
-      checkpoints: the checkpoints written, or None; warnings: every warning of the run.
-      camera: intrinsics at the working resolution and ``depth_scale``; config: the SLAM config as a dict.
-      world_from_map: [4][4] map (first camera) coordinates -> the trajectory file's frame.
-      per_frame: one list per :data:`gsjax.app.run_outputs.PER_FRAME` name, a value per frame (None: not finite).
+      dataset: the dataset's name (``tum``, ``7scenes``, ``rosbag``, ...).
+      frames: frames processed.
+      width: the working width (px).
+      height: the working height (px).
+      trajectory: the trajectory errors, or None without ground truth (fewer than 3 valid poses).
+      constant_pose_ate_rmse_c2w_cm: the ATE of a camera that never moves, a baseline (cm), or None.
+      render: rendering metrics on the evaluation frames.
+      cbknn: CB-KNN's diagnostics, or None when it did not smooth renders.
+      frames_per_s: SLAM throughput, compilation included (frames/s), or None.
+      seconds_per_frame: its inverse (s), or None.
+      stage_timings_s: seconds per stage: ``read_frames_s``, ``slam_s``, ``checkpoint_s``, ``regrow_s``,
+        ``compile_s_estimate``, ``outputs_s``, ``report_s`` (and ``observe_s`` with the viewer) (s).
+      num_gaussians: the final map's active Gaussians.
+      capacity: the map's slots (Gaussians it can hold).
+      keyframes: keyframes stored at the end.
+      nonfinite_tracking_iterations: tracking iterations skipped because the loss or gradient was not finite.
+      nonfinite_mapping_iterations: the same for mapping.
+      frames_with_truncated_render: frames whose densification render was truncated by the rasterizer's
+        capacities.
+      max_truncation_residual: the largest transmittance truncation left in such a render, or None.
+      skipped_frames: frames with too little valid depth, which kept their predicted pose.
+      retried_frames: frames whose tracking diverged and was tracked again.
+      diverged_frames: frames that fell back to the constant-velocity prediction.
+      nonfinite_gaussians: Gaussians freed because a parameter was not finite.
+      checkpoints: the checkpoints written, or None.
+      warnings: every warning of the run, one line each.
+      camera: the intrinsics at the working resolution (``fx``, ``fy``, ``cx``, ``cy`` px; ``width``, ``height``)
+        and ``depth_scale`` (stored depth units per metre; None where the dataset gives metres).
+      config: the SLAM config as a dict (``config.json`` holds it with the run's input).
+      world_from_map: [4][4] the transform from map coordinates (the first camera's frame, ``map.ply``'s) to the
+        trajectory file's frame (m).
+      keyframe_frames: the frame numbers stored as keyframes, in order.
+      per_frame: one list per series, a value per frame (None where not finite): ``tracking_loss``,
+        ``mapping_loss``, ``num_gaussians``, ``added``, ``dropped``, ``gamma``, ``tracking_iters``, ``depth_valid``
+        (:class:`gsjax.slam.system.StepOutputs` defines each).
     """
 
     dataset: str | None = None

@@ -40,18 +40,24 @@ class StepOutputs(NamedTuple):
     """Per-frame outputs of :func:`step` (stacked along the frames by the scan).
 
     Attributes:
-      w2c: [4, 4] estimated world-to-camera pose; tracking_loss: [] loss at that pose (0 at frame 0);
-      mapping_loss: [] last mapping iteration's loss (0 on a frame not mapped, ``mapping.every``);
-      num_gaussians: [] active after the step;
-      added, dropped: [] Gaussians densified / not inserted for lack of capacity; keyframe: [] bool;
-      gamma: [] motion used by CB-KNN; nonfinite: [] skipped tracking iterations; truncated: [] bool, the
-      densification render was truncated by the rasterizer's capacities; truncation_residual: [] the largest
-      transmittance that truncation left in that render; skipped: [] bool, the frame had too little valid depth
-      and kept its predicted pose; retried, diverged: [] bool, tracking diverged and the frame was tracked again
-      / fell back to the constant-velocity prediction (:func:`gsjax.slam.tracking.track_guarded`);
-      nonfinite_gaussians: [] Gaussians freed this frame because a parameter was not finite;
-      tracking_iters: [] int32 tracking iterations run (both attempts of a retried frame; 0 when not tracked);
-      depth_valid: [] the fraction of the frame's pixels with valid depth.
+      w2c: [4, 4] float32 estimated world-to-camera pose.
+      tracking_loss: [] float32 the tracking loss at that pose (0 at frame 0).
+      mapping_loss: [] float32 the last mapping iteration's loss (0 on a frame not mapped, ``mapping.every``).
+      num_gaussians: [] int32 active Gaussians after the step.
+      added: [] int32 Gaussians densified this frame.
+      dropped: [] int32 Gaussians not inserted for lack of capacity.
+      keyframe: [] bool, the frame was stored as a keyframe.
+      gamma: [] float32 the camera motion CB-KNN's adaptive K used.
+      nonfinite: [] int32 tracking iterations skipped because the loss or gradient was not finite.
+      truncated: [] bool, the densification render was truncated by the rasterizer's capacities.
+      truncation_residual: [] float32 the largest transmittance that truncation left in that render.
+      skipped: [] bool, the frame had too little valid depth and kept its predicted pose.
+      retried: [] bool, tracking diverged and the frame was tracked again
+        (:func:`gsjax.slam.tracking.track_guarded`).
+      diverged: [] bool, the frame fell back to the constant-velocity prediction.
+      nonfinite_gaussians: [] int32 Gaussians freed this frame because a parameter was not finite.
+      tracking_iters: [] int32 tracking iterations run (both attempts of a retried frame; 0 when not tracked).
+      depth_valid: [] float32 the fraction of the frame's pixels with valid depth.
     """
 
     w2c: jax.Array

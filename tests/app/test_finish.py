@@ -12,6 +12,7 @@ import pytest
 
 from gsjax.app.cli import main
 from gsjax.data import write_tum
+from tests.support.metrics_schema import assert_valid_metrics
 from tests.support.tiny_slam import CHUNK, FRAMES, HEIGHT, TINY_OVERRIDES, WIDTH, tiny_sequence
 
 SKIPPED = 3
@@ -35,7 +36,7 @@ def test_a_run_and_a_one_config_sweep_write_the_same_metrics_and_config(tmp_path
     assert main(["sweep", "--out", str(tmp_path / "sweep"), *common, "--grid", f"tracking.lr_trans={LR}"]) == 0
     capsys.readouterr()
     swept = tmp_path / "sweep" / "runs" / "000"
-    run_metrics, sweep_metrics = (json.loads((d / "metrics.json").read_text()) for d in (tmp_path / "run", swept))
+    run_metrics, sweep_metrics = (assert_valid_metrics(d / "metrics.json") for d in (tmp_path / "run", swept))
     assert run_metrics["skipped_frames"] == [SKIPPED]
     assert any(f"frame {SKIPPED}" in w and "valid depth" in w for w in sweep_metrics["warnings"])
     for key in TIMINGS:

@@ -22,6 +22,7 @@ from gsjax.io.trajectory import read_tum_trajectory
 from gsjax.raster import render
 from gsjax.report import read_run, write_report
 from gsjax.report.page import HEADER
+from tests.support.metrics_schema import assert_valid_metrics
 from tests.support.tiny_slam import FRAMES, run_options, tiny_config, tiny_sequence
 
 SECTIONS = ("metrics", "trajectory", "errors", "drift", "renders", "psnr", "map", "timings", "cbknn", "warnings",
@@ -49,6 +50,11 @@ def images_of(page: str) -> list[np.ndarray]:
         assert image is not None and image.size > 0
         decoded.append(image)
     return decoded
+
+
+def test_the_metrics_json_of_a_paper_and_an_off_run_follow_the_schema(runs):
+    paper = assert_valid_metrics(runs["paper"][0] / "metrics.json")
+    assert paper["cbknn"]["samples"] and assert_valid_metrics(runs["off"][0] / "metrics.json")["cbknn"] is None
 
 
 def test_every_run_writes_a_self_contained_report_with_every_section(runs):
