@@ -41,7 +41,7 @@ class TrajectoryMetrics:
       num_rpe_pairs: consecutive pairs the RPE is computed on.
       max_dt_s: the association tolerance (s).
       with_scale: whether the alignment also fits a scale (the SplaTAM variant stays rigid).
-      alignment: the alignment of the estimate onto the ground truth: ``rotation`` [3][3], ``translation_m`` [3],
+      alignment: the alignment of the estimate onto the ground truth: ``rotation`` [3, 3], ``translation_m`` [3],
         ``scale``.
       per_frame: the errors behind the statistics: ``est_index`` and ``ate_c2w_m`` (m) per evaluated estimate row;
         ``rpe_est_index`` (the second row of each pair), ``rpe_trans_m`` (m) and ``rpe_rot_deg`` (deg) per RPE pair.
@@ -91,7 +91,14 @@ class RenderMetrics:
     per_frame: list[dict[str, float]] = dataclasses.field(default_factory=list)
 
     def at(self, frame: int) -> dict[str, float] | None:
-        """Frame ``frame``'s metrics, or None when it was not evaluated."""
+        """One evaluated frame's metrics.
+
+        Args:
+          frame: a frame number.
+
+        Returns:
+          Its dict of ``per_frame`` metrics, or None when it was not evaluated.
+        """
         return self.per_frame[self.frames.index(frame)] if frame in self.frames[:len(self.per_frame)] else None
 
 
@@ -173,8 +180,8 @@ class RunMetrics:
       camera: the intrinsics at the working resolution (``fx``, ``fy``, ``cx``, ``cy`` px; ``width``, ``height``)
         and ``depth_scale`` (stored depth units per metre; None where the dataset gives metres).
       config: the SLAM config as a dict (``config.json`` holds it with the run's input).
-      world_from_map: [4][4] the transform from map coordinates (the first camera's frame, ``map.ply``'s) to the
-        trajectory file's frame (m).
+      world_from_map: [4, 4] (nested lists) the transform from map coordinates (the first camera's frame,
+        ``map.ply``'s) to the trajectory file's frame (m).
       keyframe_frames: the frame numbers stored as keyframes, in order.
       per_frame: one list per series, a value per frame (None where not finite): ``tracking_loss``,
         ``mapping_loss``, ``num_gaussians``, ``added``, ``dropped``, ``gamma``, ``tracking_iters``, ``depth_valid``
@@ -222,17 +229,41 @@ class RunMetrics:
         return None if self.render.mean is None else self.render.mean["psnr_db"]
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON object ``metrics.json`` holds (field names as keys, in field order)."""
+        """The record as ``metrics.json`` holds it.
+
+        Returns:
+          A JSON-ready dict: the field names as keys, in field order, nested records as dicts.
+        """
         return dataclasses.asdict(self)
 
     @classmethod
     def from_json(cls, value: dict[str, Any]) -> RunMetrics:
-        """The record of a ``metrics.json`` object. Raises ValueError naming a key whose value has the wrong shape."""
+        """The record of a ``metrics.json`` object.
+
+        Args:
+          value: the parsed JSON object; a key it lacks takes its default, a key the record does not know is ignored.
+
+        Returns:
+          The :class:`RunMetrics`.
+
+        Raises:
+          ValueError: naming a key whose value has the wrong shape, or a required key that is missing.
+        """
         return _record(cls, value)
 
 
 def read_run_metrics(path: str | Path) -> RunMetrics:
-    """Read a ``metrics.json``; raises ValueError naming the file when it cannot be read or is not one."""
+    """Read a run's ``metrics.json``, of this gsjax or an older one.
+
+    Args:
+      path: the file.
+
+    Returns:
+      The :class:`RunMetrics` it holds.
+
+    Raises:
+      ValueError: naming the file, when it cannot be read or is not a ``metrics.json``.
+    """
     path = Path(path)
     try:
         value = json.loads(path.read_text(encoding="utf-8"))

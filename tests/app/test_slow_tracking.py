@@ -1,8 +1,8 @@
 """The slow suite's accuracy guard (``make test-slow``): end-to-end ATE of ``gsjax run --preset cpu`` on the
 synthetic scene (clean and noisy), the 7-Scenes sample (40 and 150 frames) and the Replica sample, CB-KNN off and
 paper, each under a bound a little above today's value (the rows and bounds are ``experiments/tracking_table.py``'s,
-which also regenerates the README table from these runs: set ``GSJAX_SLOW_WORK=DIR`` here
-and pass ``--work DIR`` there)."""
+which also regenerates the site's tracking table, docs/findings/accuracy.md, from these runs: set
+``GSJAX_SLOW_WORK=DIR`` here and pass ``--work DIR --update-docs`` there)."""
 
 from __future__ import annotations
 

@@ -31,7 +31,7 @@ COMMANDS = (run, sweep, landscape, report, view, bench, evaluate, synth, config)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = Parser(prog="gsjax", description=__doc__.splitlines()[0])
+    parser = Parser(prog="gsjax", description="Dense RGB-D SLAM with 3D Gaussian Splatting and CB-KNN, in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.add(sub)

@@ -10,7 +10,8 @@ def add(sub) -> None:
         "run",
         help="run SLAM on a sequence and write trajectory, metrics, plots, renders, map and checkpoints",
         description="Run SLAM on a sequence. Any config field can be overridden by its dotted name, e.g. "
-        "--tracking.iters 60 --mapping.lr_means 2e-3 --cbknn.params.alpha 0.3 (see gsjax/slam/config.py).",
+        "--tracking.iters 60 --mapping.lr_means 2e-3 --cbknn.params.alpha 0.3 (`gsjax config --reference -` lists "
+        "every field).",
         parents=[common.COMMON],
     )
     common.add_sequence_flags(p)
