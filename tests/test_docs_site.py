@@ -1,6 +1,7 @@
 """The documentation site in a real browser (headless Chromium): the home page, the API page of
 ``gsjax.raster.render`` and a tutorial load with no console error, no request outside the site and the tutorial's
-figures drawn. Uses ``site/`` as ``make docs`` builds it (``make test`` builds it first)."""
+figures drawn; the method page's formulas are MathML that the browser lays out itself. Uses ``site/`` as ``make docs``
+builds it (``make test`` builds it first)."""
 
 from __future__ import annotations
 
@@ -51,5 +52,28 @@ def test_a_page_of_the_site_loads_cleanly(served, page_path, expect):
             figures = page.locator("img[src^='data:image/png']")
             assert figures.count() >= 2
             assert all(figures.nth(i).evaluate("img => img.naturalWidth > 0") for i in range(figures.count()))
+    finally:
+        page.context.close()
+
+
+def test_the_method_page_draws_its_formulas_as_mathml(served):
+    """The formulas are MathML converted at build time (docs/hooks/mathml.py): no script, nothing from outside, and
+    Chromium lays each one out as maths (display ``math`` / ``block math``, not an unknown inline element) with a
+    size, inline and displayed; no LaTeX is left as text."""
+    browser, root = served
+    page, log = open_page(browser, root + "method/", allowed=(root, "data:", "blob:"))
+    try:
+        page.wait_for_load_state("networkidle")
+        assert not log.errors and not log.exceptions and not log.outside, (log.errors, log.exceptions, log.outside)
+        formulas = page.locator("article math")
+        assert formulas.count() >= 1
+        boxes = formulas.evaluate_all(
+            "els => els.map(e => { const r = e.getBoundingClientRect();"
+            " return [getComputedStyle(e).display, r.width, r.height]; })")
+        drawn = [display in ("math", "block math") and width > 0 and height > 0 for display, width, height in boxes]
+        assert all(drawn), [box for box, ok in zip(boxes, drawn) if not ok]
+        assert {"math", "block math"} <= {display for display, _, _ in boxes}
+        text = page.locator("article").inner_text()
+        assert "\\(" not in text and "\\[" not in text and "$$" not in text
     finally:
         page.context.close()
