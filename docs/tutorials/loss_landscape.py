@@ -1,5 +1,5 @@
 # %% [markdown]
-# # A loss landscape and its basin, with `jax.grad`
+# # A loss landscape and its basin, with jax.grad
 #
 # Tracking minimises a photometric and depth loss over the camera pose with the map held fixed. Moving the pose
 # away from where SLAM put it and evaluating the loss (and its gradient, by `jax.grad` through the renderer) draws
