@@ -34,9 +34,12 @@ class Intrinsics:
     """Pinhole intrinsics in pixels. ``height`` and ``width`` are static ints (they set array shapes).
 
     Attributes:
-      fx, fy: focal lengths (px), scalar arrays or floats.
-      cx, cy: principal point (px) in the integer-pixel-centre convention.
-      height, width: image size (px).
+      fx: focal length along x (px), a float32 scalar array or a float.
+      fy: focal length along y (px), a float32 scalar array or a float.
+      cx: principal point's column (px), pixel centres at integers.
+      cy: principal point's row (px), pixel centres at integers.
+      height: image height (px), a static int.
+      width: image width (px), a static int.
     """
 
     fx: jax.Array | float = required("px", low=0.0, low_open=True, scaling=None)
@@ -47,8 +50,12 @@ class Intrinsics:
     width: int = required("px", static=True, low=1)
 
     def check(self) -> None:
-        """ValueError naming the first field that is not a valid camera (values are checked when concrete: not
-        under a trace; the image size always, it is static)."""
+        """Check that this is a valid camera: the image size always (it is static), values only when concrete.
+
+        Raises:
+          ValueError: naming the first field that is not valid (e.g. not a scalar, a focal length <= 0, a
+            non-integer or non-positive size).
+        """
         for name in ("fx", "fy", "cx", "cy"):
             if np.ndim(getattr(self, name)) != 0:
                 raise ValueError(f"intrinsics.{name} must be a scalar, got shape {list(np.shape(getattr(self, name)))}")
@@ -56,10 +63,15 @@ class Intrinsics:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(height, width) of the image (px)."""
         return (self.height, self.width)
 
     def matrix(self) -> jax.Array:
-        """The 3x3 calibration matrix K."""
+        """The calibration matrix K.
+
+        Returns:
+          [3, 3] float32 ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (px).
+        """
         zero, one = jnp.zeros_like(jnp.asarray(self.fx, jnp.float32)), jnp.ones_like(jnp.asarray(self.fx, jnp.float32))
         return jnp.stack(
             [
@@ -70,14 +82,27 @@ class Intrinsics:
         )
 
     def tan_half_fov(self) -> tuple[jax.Array, jax.Array]:
-        """(tan(fov_x / 2), tan(fov_y / 2)) = (W / (2 fx), H / (2 fy)), as in 3DGS."""
+        """Tangents of the half fields of view, as in 3DGS.
+
+        Returns:
+          ``(tan(fov_x / 2), tan(fov_y / 2)) = (W / (2 fx), H / (2 fy))``, scalar arrays.
+        """
         return self.width / (2.0 * jnp.asarray(self.fx)), self.height / (2.0 * jnp.asarray(self.fy))
 
     def downscaled(self, factor: int) -> "Intrinsics":
-        """Intrinsics of the image reduced by an integer ``factor`` (each output pixel = a factor x factor block).
+        """Intrinsics of the image reduced by an integer factor (each output pixel = a factor x factor block).
 
         With pixel centres at integers, output pixel j covers input pixels ``f j .. f j + f - 1`` whose centre is
-        ``f j + (f - 1) / 2``, hence ``fx' = fx / f`` and ``cx' = (cx + 0.5) / f - 0.5``. Sizes are floored.
+        ``f j + (f - 1) / 2``, hence ``fx' = fx / f`` and ``cx' = (cx + 0.5) / f - 0.5``.
+
+        Args:
+          factor: the reduction f, a positive int.
+
+        Returns:
+          The reduced camera; its height and width are floored (``height // f``, ``width // f``).
+
+        Raises:
+          ValueError: ``factor`` is not a positive int, or leaves no pixel.
         """
         if not isinstance(factor, int) or factor < 1:
             raise ValueError(f"downscale factor must be a positive int, got {factor!r}")
@@ -94,10 +119,18 @@ class Intrinsics:
         )
 
     def strided(self, row: int | jax.Array, col: int | jax.Array) -> "Intrinsics":
-        """Intrinsics of every other pixel of this image: output pixel (i, j) is input pixel (2 i + ``row``, 2 j +
-        ``col``) (offsets 0 or 1, may be traced), so ``fx' = fx / 2``, ``cx' = (cx - col) / 2``; sizes floored.
-        Rendered with the dilation divided by 4 (the 2D covariance shrinks by 4 in these pixels), the render is the
-        input render's pixels there."""
+        """Intrinsics of every other pixel: output pixel (i, j) is input pixel (2 i + ``row``, 2 j + ``col``).
+
+        So ``fx' = fx / 2``, ``cx' = (cx - col) / 2``. Rendered with the dilation divided by 4 (the 2D covariance
+        shrinks by 4 in these pixels), the render is the input render's pixels there.
+
+        Args:
+          row: row offset, 0 or 1 (may be traced).
+          col: column offset, 0 or 1 (may be traced).
+
+        Returns:
+          The strided camera, ``height // 2`` x ``width // 2``.
+        """
         return Intrinsics(
             fx=self.fx / 2.0,
             fy=self.fy / 2.0,
@@ -109,8 +142,22 @@ class Intrinsics:
 
 
 def make_intrinsics(fx: float, fy: float, cx: float, cy: float, height: int, width: int) -> Intrinsics:
-    """Intrinsics with float32 scalar arrays, after checking the values (ValueError naming the bad one); a whole
-    number given as a float (640.0) is a valid size."""
+    """Intrinsics with float32 scalar arrays, after checking the values.
+
+    Args:
+      fx: focal length along x (px), > 0.
+      fy: focal length along y (px), > 0.
+      cx: principal point's column (px), pixel centres at integers.
+      cy: principal point's row (px).
+      height: image height (px); a whole number given as a float (480.0) is accepted.
+      width: image width (px), likewise.
+
+    Returns:
+      The camera, ``fx .. cy`` float32 scalar arrays, ``height`` and ``width`` ints.
+
+    Raises:
+      ValueError: naming the first value that is not valid.
+    """
     def whole(value):
         return int(value) if isinstance(value, (float, np.floating)) and float(value).is_integer() else value
 
@@ -120,15 +167,29 @@ def make_intrinsics(fx: float, fy: float, cx: float, cy: float, height: int, wid
 
 
 def project_points(points_cam: jax.Array, intrinsics: Intrinsics) -> jax.Array:
-    """Camera-frame points [..., 3] (m) -> pixel coordinates [..., 2] (u, v) in px."""
+    """Project camera-frame points to pixel coordinates, ``u = fx X/Z + cx``, ``v = fy Y/Z + cy``.
+
+    Args:
+      points_cam: [..., 3] points (X, Y, Z) in the camera frame (m), Z > 0 (not checked).
+      intrinsics: the camera.
+
+    Returns:
+      [..., 2] pixel coordinates (u, v) = (column, row) (px).
+    """
     x, y, z = points_cam[..., 0], points_cam[..., 1], points_cam[..., 2]
     return jnp.stack([intrinsics.fx * x / z + intrinsics.cx, intrinsics.fy * y / z + intrinsics.cy], axis=-1)
 
 
 def backproject(depth: jax.Array, intrinsics: Intrinsics) -> jax.Array:
-    """Depth image [H, W] (m, along the optical axis) -> camera-frame points [H, W, 3] (m).
+    """Back-project a depth image to camera-frame points: the inverse of :func:`project_points`.
 
-    Exact inverse of :func:`project_points` at the pixel centres (u, v) = (column, row).
+    Args:
+      depth: [H, W] depth along the optical axis (m), float.
+      intrinsics: the camera (``fx .. cy`` are used; H and W come from ``depth``).
+
+    Returns:
+      [H, W, 3] points (X, Y, Z = depth) in the camera frame (m), dtype of ``depth``; pixel (i, j) at its centre
+      (u, v) = (j, i).
     """
     height, width = depth.shape
     v, u = jnp.meshgrid(jnp.arange(height, dtype=depth.dtype), jnp.arange(width, dtype=depth.dtype), indexing="ij")
@@ -141,7 +202,14 @@ def backproject(depth: jax.Array, intrinsics: Intrinsics) -> jax.Array:
 
 
 def hat(phi: jax.Array) -> jax.Array:
-    """Skew-symmetric matrix [3, 3] of a 3-vector, so that ``hat(a) @ b = cross(a, b)``."""
+    """Skew-symmetric matrix of a 3-vector, so that ``hat(a) @ b = cross(a, b)``.
+
+    Args:
+      phi: [..., 3] vectors.
+
+    Returns:
+      [..., 3, 3] matrices, dtype of ``phi``.
+    """
     x, y, z = phi[..., 0], phi[..., 1], phi[..., 2]
     zero = jnp.zeros_like(x)
     return jnp.stack(
@@ -167,24 +235,52 @@ def _rotation_coefficients(phi: jax.Array) -> tuple[jax.Array, jax.Array, jax.Ar
 
 
 def so3_exp(phi: jax.Array) -> jax.Array:
-    """Axis-angle [3] (rad) -> rotation matrix [3, 3] (Rodrigues)."""
+    """Rotation matrix of an axis-angle vector (Rodrigues; Taylor series near 0, finite gradients there).
+
+    Args:
+      phi: [..., 3] axis-angle: unit axis times angle (rad).
+
+    Returns:
+      [..., 3, 3] rotation matrices, dtype of ``phi``.
+    """
     a, b, _ = _rotation_coefficients(phi)
     k = hat(phi)
     return jnp.eye(3, dtype=phi.dtype) + a[..., None, None] * k + b[..., None, None] * (k @ k)
 
 
 def rotation_to_quaternion(rotation: jax.Array) -> jax.Array:
-    """Rotation matrices [..., 3, 3] -> unit quaternions [..., 4] (w, x, y, z) with w >= 0 (Shepperd's method)."""
+    """Unit quaternions of rotation matrices (Shepperd's method).
+
+    Args:
+      rotation: [..., 3, 3] rotation matrices.
+
+    Returns:
+      [..., 4] unit quaternions, scalar first (w, x, y, z), with w >= 0.
+    """
     return _shepperd(rotation, jnp)
 
 
 def quaternion_to_rotation(quat: jax.Array) -> jax.Array:
-    """Quaternions [..., 4] (w, x, y, z), normalised here, -> rotation matrices [..., 3, 3]."""
+    """Rotation matrices of quaternions.
+
+    Args:
+      quat: [..., 4] quaternions, scalar first (w, x, y, z); normalised here (any non-zero norm).
+
+    Returns:
+      [..., 3, 3] rotation matrices.
+    """
     return _quaternion_matrix(quat / jnp.linalg.norm(quat, axis=-1, keepdims=True), jnp)
 
 
 def so3_log(rotation: jax.Array) -> jax.Array:
-    """Rotation matrix [3, 3] -> axis-angle [3] (rad), angle in [0, pi]; robust near 0 and pi (via quaternions)."""
+    """Axis-angle vector of a rotation matrix, the inverse of :func:`so3_exp`; robust near 0 and pi (quaternions).
+
+    Args:
+      rotation: [3, 3] rotation matrix (one, not batched).
+
+    Returns:
+      [3] axis-angle (rad), angle in [0, pi].
+    """
     q = rotation_to_quaternion(rotation)
     w, v = q[0], q[1:]
     vnorm_sq = jnp.sum(v * v)
@@ -196,12 +292,26 @@ def so3_log(rotation: jax.Array) -> jax.Array:
 
 
 def rotation_angle(rotation: jax.Array) -> jax.Array:
-    """Rotation angle (rad, in [0, pi]) of a rotation matrix."""
+    """Rotation angle of a rotation matrix.
+
+    Args:
+      rotation: [3, 3] rotation matrix (one, not batched).
+
+    Returns:
+      [] angle (rad), in [0, pi].
+    """
     return jnp.linalg.norm(so3_log(rotation))
 
 
 def se3_exp(delta: jax.Array) -> jax.Array:
-    """Tangent vector [6] = (rho, phi) -> 4x4 rigid transform [[R, V rho], [0, 1]]."""
+    """Exponential map of SE(3): the rigid transform ``[[R, V rho], [0, 1]]`` of a tangent vector.
+
+    Args:
+      delta: [6] tangent vector (rho, phi): translation part (m) first, rotation (axis-angle, rad) second.
+
+    Returns:
+      [4, 4] rigid transform, dtype of ``delta``.
+    """
     rho, phi = delta[:3], delta[3:]
     a, b, c = _rotation_coefficients(phi)
     k = hat(phi)
@@ -213,7 +323,14 @@ def se3_exp(delta: jax.Array) -> jax.Array:
 
 
 def se3_log(transform: jax.Array) -> jax.Array:
-    """4x4 rigid transform -> tangent vector [6] = (rho, phi), the inverse of :func:`se3_exp`."""
+    """Logarithm of SE(3), the inverse of :func:`se3_exp`.
+
+    Args:
+      transform: [4, 4] rigid transform (m).
+
+    Returns:
+      [6] tangent vector (rho, phi): translation part (m), then axis-angle (rad, angle in [0, pi]).
+    """
     phi = so3_log(transform[:3, :3])
     _, b, c = _rotation_coefficients(phi)
     k = hat(phi)
@@ -223,32 +340,69 @@ def se3_log(transform: jax.Array) -> jax.Array:
 
 
 def from_rotation_translation(rotation: jax.Array, translation: jax.Array) -> jax.Array:
-    """[3, 3] rotation and [3] translation -> 4x4 transform."""
+    """Homogeneous transform ``[[R, t], [0, 1]]``.
+
+    Args:
+      rotation: [3, 3] rotation R.
+      translation: [3] translation t (m).
+
+    Returns:
+      [4, 4] transform.
+    """
     top = jnp.concatenate([rotation, translation[:, None]], axis=1)
     bottom = jnp.array([[0.0, 0.0, 0.0, 1.0]], dtype=top.dtype)
     return jnp.concatenate([top, bottom], axis=0)
 
 
 def se3_inverse(transform: jax.Array) -> jax.Array:
-    """Inverse of a rigid 4x4 transform, using R^T (exact for rigid inputs)."""
+    """Inverse of a rigid transform, ``[[R^T, -R^T t], [0, 1]]`` (exact for rigid inputs).
+
+    Args:
+      transform: [4, 4] rigid transform.
+
+    Returns:
+      [4, 4] its inverse (a w2c for a c2w and vice versa).
+    """
     rot_t = transform[:3, :3].T
     return from_rotation_translation(rot_t, -rot_t @ transform[:3, 3])
 
 
 def perturb_left(delta: jax.Array, transform: jax.Array) -> jax.Array:
-    """Left perturbation ``exp(delta) @ transform`` (the update rule of tracking)."""
+    """Left perturbation ``exp(delta) @ transform`` (the update rule of tracking).
+
+    Args:
+      delta: [6] tangent vector (rho in m, phi in rad), as :func:`se3_exp`.
+      transform: [4, 4] rigid transform (a w2c pose in tracking).
+
+    Returns:
+      [4, 4] the perturbed transform.
+    """
     return se3_exp(delta) @ transform
 
 
 def orthonormalize(transform: jax.Array) -> jax.Array:
     """The nearest rigid transform, in practice: rotation re-built from its (normalised) quaternion, last row
-    reset. Repeated float32 products drift off SE(3); poses carried from frame to frame are passed through this."""
+    reset. Repeated float32 products drift off SE(3); poses carried from frame to frame are passed through this.
+
+    Args:
+      transform: [4, 4] nearly rigid transform.
+
+    Returns:
+      [4, 4] rigid transform with the same translation.
+    """
     rotation = quaternion_to_rotation(rotation_to_quaternion(transform[:3, :3]))
     return from_rotation_translation(rotation, transform[:3, 3])
 
 
 def camera_center(w2c: jax.Array) -> jax.Array:
-    """Camera centre in world coordinates [3] (m) of a world-to-camera pose: ``-R^T t``."""
+    """Camera centre of a world-to-camera pose, ``-R^T t``.
+
+    Args:
+      w2c: [4, 4] world-to-camera pose (m).
+
+    Returns:
+      [3] camera centre in world coordinates (m).
+    """
     return -w2c[:3, :3].T @ w2c[:3, 3]
 
 
@@ -257,15 +411,28 @@ def constant_velocity(w2c_prev2: jax.Array, w2c_prev1: jax.Array) -> jax.Array:
 
     ``T_t = (T_{t-1} T_{t-2}^{-1}) T_{t-1}``; in camera-to-world terms this is ``C_{t-1} (C_{t-2}^{-1} C_{t-1})``,
     i.e. the body-frame motion of the last step repeated.
+
+    Args:
+      w2c_prev2: [4, 4] world-to-camera pose two frames back.
+      w2c_prev1: [4, 4] world-to-camera pose of the previous frame.
+
+    Returns:
+      [4, 4] predicted world-to-camera pose of the current frame.
     """
     return w2c_prev1 @ se3_inverse(w2c_prev2) @ w2c_prev1
 
 
 def rigidity_error(transform: jax.Array | np.ndarray) -> jax.Array | np.ndarray:
-    """How far 4x4 matrices [..., 4, 4] are from rigid transforms -> [...]: max of |R^T R - I|, |det R - 1| and
-    |last row - e4| (0 for a rigid transform). Used by the renderer on w2c and by the dataset readers on GT poses.
+    """How far matrices are from rigid transforms: max of |R^T R - I|, |det R - 1| and |last row - e4|.
 
-    A numpy input is checked in numpy (host side, no tracing: safe to call while an outer jit is tracing)."""
+    Used by the renderer on w2c and by the dataset readers on GT poses.
+
+    Args:
+      transform: [..., 4, 4] matrices; a numpy input is checked in numpy (host side: safe while a jit traces).
+
+    Returns:
+      [...] errors (0 for a rigid transform), numpy for a numpy input, else a jax array.
+    """
     xp = np if isinstance(transform, np.ndarray) else jnp
     rot = transform[..., :3, :3]
     ortho = xp.max(xp.abs(xp.swapaxes(rot, -1, -2) @ rot - xp.eye(3, dtype=transform.dtype)), axis=(-1, -2))
@@ -278,19 +445,39 @@ def rigidity_error(transform: jax.Array | np.ndarray) -> jax.Array | np.ndarray:
 
 
 def rotation_to_quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
-    """Rotation matrices [..., 3, 3] -> unit quaternions [..., 4] (w, x, y, z), w >= 0, float64: the formula of
-    :func:`rotation_to_quaternion`."""
+    """Unit quaternions of rotation matrices in numpy float64: the formula of :func:`rotation_to_quaternion`.
+
+    Args:
+      rotation: [..., 3, 3] rotation matrices.
+
+    Returns:
+      [..., 4] float64 unit quaternions, scalar first (w, x, y, z), with w >= 0.
+    """
     return _shepperd(np.asarray(rotation, np.float64), np)
 
 
 def quaternion_wxyz_to_rotation(quat: np.ndarray) -> np.ndarray:
-    """Unit quaternions [..., 4] (w, x, y, z) -> rotation matrices [..., 3, 3], float64: the formula of
-    :func:`quaternion_to_rotation`, without its normalisation (the readers normalise what they read)."""
+    """Rotation matrices of unit quaternions in numpy float64: :func:`quaternion_to_rotation` without its
+    normalisation (the readers normalise what they read).
+
+    Args:
+      quat: [..., 4] unit quaternions, scalar first (w, x, y, z).
+
+    Returns:
+      [..., 3, 3] float64 rotation matrices.
+    """
     return _quaternion_matrix(np.asarray(quat, np.float64), np)
 
 
 def invert_rigid(transform: np.ndarray) -> np.ndarray:
-    """Inverse of rigid transforms [..., 4, 4] via ``R^T`` (float64): :func:`se3_inverse` batched."""
+    """Inverse of rigid transforms via ``R^T`` in numpy float64: :func:`se3_inverse` batched.
+
+    Args:
+      transform: [..., 4, 4] rigid transforms.
+
+    Returns:
+      [..., 4, 4] float64 inverses, last row exactly (0, 0, 0, 1).
+    """
     transform = np.asarray(transform, np.float64)
     rot_t = np.swapaxes(transform[..., :3, :3], -1, -2)
     out = np.zeros_like(transform)
@@ -301,16 +488,30 @@ def invert_rigid(transform: np.ndarray) -> np.ndarray:
 
 
 def invert_transform(transform: np.ndarray) -> np.ndarray:
-    """Exact inverse of invertible transforms [..., 4, 4] (float64), for poses that are rigid only to rounding: a
-    float32 pose from the core, a ground-truth matrix read from a file. Files written from a pose (``trajectory.txt``)
-    keep the digits of its exact inverse; :func:`invert_rigid` (``R^T``) is the inverse of the nearest rigid
-    transform, equal to this to within the pose's own orthonormality error (about 1e-7 for float32)."""
+    """Exact inverse of invertible transforms in numpy float64, for poses rigid only to rounding (a float32 pose
+    from the core, a ground-truth matrix read from a file): files written from a pose (``trajectory.txt``) keep the
+    digits of its exact inverse. :func:`invert_rigid` (``R^T``) inverts the nearest rigid transform, equal to this
+    to within the pose's own orthonormality error (about 1e-7 for float32).
+
+    Args:
+      transform: [..., 4, 4] invertible transforms.
+
+    Returns:
+      [..., 4, 4] float64 inverses.
+    """
     return np.linalg.inv(np.asarray(transform, np.float64))
 
 
 def rotation_angle_rad(rotation: np.ndarray) -> np.ndarray:
-    """Rotation angle (rad, in [0, pi]) of rotation matrices [..., 3, 3], float64; accurate at small angles (atan2
-    of the sine from the skew part and the cosine from the trace)."""
+    """Rotation angle of rotation matrices in numpy float64; accurate at small angles (atan2 of the sine from the
+    skew part and the cosine from the trace).
+
+    Args:
+      rotation: [..., 3, 3] rotation matrices.
+
+    Returns:
+      [...] float64 angles (rad), in [0, pi].
+    """
     r = np.asarray(rotation, np.float64)
     cos = 0.5 * (r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1.0)
     skew = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1)

@@ -40,22 +40,37 @@ class Gaussians:
 
     @property
     def capacity(self) -> int:
+        """N, the number of slots (static)."""
         return self.means.shape[-2]
 
     @property
     def scales(self) -> jax.Array:
+        """[N] standard deviations (m), ``exp(log_scales)``."""
         return jnp.exp(self.log_scales)
 
     @property
     def opacities(self) -> jax.Array:
+        """[N] opacities in (0, 1), ``sigmoid(logit_opacities)``."""
         return jax.nn.sigmoid(self.logit_opacities)
 
     def num_active(self) -> jax.Array:
+        """Number of occupied slots.
+
+        Returns:
+          [] int32 (or [...] for a stacked map), the count of ``active``.
+        """
         return jnp.sum(self.active.astype(jnp.int32), axis=-1)
 
     @staticmethod
     def empty(capacity: int) -> "Gaussians":
-        """A map with ``capacity`` free slots."""
+        """A map with every slot free.
+
+        Args:
+          capacity: N, the number of slots.
+
+        Returns:
+          Gaussians of N slots, all fields zero (float32) and ``active`` all False.
+        """
         return Gaussians(
             means=jnp.zeros((capacity, 3), jnp.float32),
             log_scales=jnp.zeros((capacity,), jnp.float32),
@@ -72,8 +87,21 @@ class Gaussians:
         opacities: jax.typing.ArrayLike = 0.5,
         capacity: int | None = None,
     ) -> "Gaussians":
-        """Gaussians from centres [n, 3] (m), colours [n, 3], scales (std-dev, m; [n] or scalar) and opacities
-        (in (0, 1); [n] or scalar), padded with free slots up to ``capacity`` (default n).
+        """Gaussians from their natural parameters, padded with free slots.
+
+        Args:
+          means: [n, 3] world-frame centres (m).
+          rgb: [n, 3] colours (in [0, 1] for images in [0, 1]).
+          scales: [n] or scalar standard deviations (m), > 0.
+          opacities: [n] or scalar opacities in (0, 1).
+          capacity: N >= n slots; default n.
+
+        Returns:
+          Gaussians of N float32 slots, the first n active (log scales, logit opacities), the rest free.
+
+        Raises:
+          ValueError: a shape is wrong, a scale <= 0 or an opacity outside (0, 1) (values checked when concrete),
+            or ``capacity`` < n.
         """
         means = jnp.asarray(means, jnp.float32)
         if means.ndim != 2 or means.shape[1] != 3:
@@ -102,8 +130,13 @@ class Gaussians:
         )
 
     def without_nonfinite(self) -> tuple["Gaussians", jax.Array]:
-        """The map with every active slot whose parameters are not all finite freed (reset to an empty slot's
-        zeros, so it cannot reach a later sum as NaN) -> (map, [] int32 number of slots freed)."""
+        """Free every active slot whose parameters are not all finite (reset to an empty slot's zeros, so it
+        cannot reach a later sum as NaN).
+
+        Returns:
+          gaussians: the cleaned map, same capacity.
+          freed: [] int32 number of slots freed.
+        """
         finite = (jnp.all(jnp.isfinite(self.means), axis=-1) & jnp.isfinite(self.log_scales)
                   & jnp.isfinite(self.logit_opacities) & jnp.all(jnp.isfinite(self.rgb), axis=-1))
         bad = self.active & ~finite
@@ -114,7 +147,17 @@ class Gaussians:
         return cleaned, jnp.sum(bad.astype(jnp.int32), axis=-1)
 
     def grow(self, capacity: int) -> "Gaussians":
-        """The same map with more free slots appended (for capacity growth between scan chunks)."""
+        """The same map with free slots appended (capacity growth between scan chunks).
+
+        Args:
+          capacity: the new number of slots, >= the current one.
+
+        Returns:
+          Gaussians of ``capacity`` slots, the existing ones first and unchanged.
+
+        Raises:
+          ValueError: ``capacity`` is smaller than the current capacity.
+        """
         pad = capacity - self.capacity
         if pad < 0:
             raise ValueError(f"cannot shrink capacity from {self.capacity} to {capacity}")
@@ -129,6 +172,10 @@ class Gaussians:
 
 def check_gaussians(gaussians: Gaussians, name: str = "gaussians") -> None:
     """Shape/dtype checks (always) and finiteness of active slots (only for concrete arrays).
+
+    Args:
+      gaussians: the map to check.
+      name: the argument's name in the error messages.
 
     Raises:
       ValueError: naming the offending field.
@@ -173,12 +220,15 @@ def gaussians_from_rgbd(
     """One Gaussian per valid depth pixel, SplaTAM's initialisation (method_spec A.4, A.7).
 
     Args:
-      color: [H, W, 3] in [0, 1]; depth: [H, W] (m, 0 = invalid); intrinsics: :class:`gsjax.camera.Intrinsics`;
-      c2w: [4, 4] camera-to-world pose; mask: optional [H, W] bool restricting the pixels; opacity: initial
-        opacity (SplaTAM: 0.5, i.e. logit 0).
+      color: [H, W, 3] float colours in [0, 1].
+      depth: [H, W] float depth (m); 0 marks an invalid pixel.
+      intrinsics: the camera of the images.
+      c2w: [4, 4] camera-to-world pose (m).
+      mask: optional [H, W] bool restricting the pixels.
+      opacity: initial opacity in (0, 1) (SplaTAM: 0.5, i.e. logit 0).
 
     Returns:
-      Gaussians with H*W slots in row-major pixel order; slots of masked-out or invalid pixels are inactive.
+      Gaussians (float32) with H*W slots in row-major pixel order; slots of masked-out or invalid pixels are inactive.
       Centres are back-projected pixel centres (so each renders centred on its pixel); the isotropic scale is one
       pixel's footprint at that depth, ``z / ((fx + fy) / 2)``.
     """

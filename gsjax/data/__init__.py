@@ -75,7 +75,7 @@ def open_sequence(
         (:class:`gsjax.data.rosbag.BagOptions`).
 
     Returns:
-      A :class:`Sequence` whose ``intrinsics`` are the downscaled ones.
+      A lazily read :class:`Sequence` whose ``intrinsics`` are the downscaled ones.
 
     Raises:
       DatasetError: (a ValueError) naming the file, for anything missing, unreadable or inconsistent; checks of

@@ -36,11 +36,28 @@ class BagTopics:
 
 def write_rosbag(sequence: Sequence, path: str | Path, *, ros: int = 1, storage: str = "sqlite3",
                  compressed: bool = False, depth_scale: float = 1000.0, topics: BagTopics = BagTopics()) -> Path:
-    """Write ``sequence`` to ``path`` (ROS 1: a ``.bag`` file; ROS 2: a bag folder in ``storage``) and its valid
-    ground-truth poses to ``/tf``; returns ``path``. Colour as ``rgb8`` (or PNG ``CompressedImage`` with
-    ``compressed``), depth as ``16UC1`` of ``depth_scale`` units per metre (or ``compressedDepth``), one
-    ``CameraInfo`` per frame; every message stamped (and logged) at the frame's timestamp. Written under a temporary
-    name and renamed, so a killed writer leaves no half bag under ``path``."""
+    """Write a sequence as a ROS bag, its valid ground-truth poses on ``/tf`` (``world`` -> ``camera``).
+
+    One ``CameraInfo`` per frame; every message stamped (and logged) at the frame's timestamp. Written under a
+    temporary name and renamed, so a killed writer leaves no half bag under ``path``.
+
+    Args:
+      sequence: the frames (read one at a time) and their ground truth.
+      path: where to write: a ``.bag`` file (ROS 1) or a bag folder (ROS 2); must not exist.
+      ros: 1 or 2.
+      storage: ROS 2's storage, "sqlite3" or "mcap" (ignored for ROS 1).
+      compressed: colour as PNG ``CompressedImage`` and depth as ``compressedDepth`` instead of raw ``rgb8`` /
+        ``16UC1``.
+      depth_scale: raw depth units per metre of the 16-bit depth.
+      topics: the topic and frame names.
+
+    Returns:
+      ``path``.
+
+    Raises:
+      ValueError: ``ros`` or ``storage`` is unknown.
+      FileExistsError: ``path`` exists.
+    """
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     if ros not in ROS_VERSIONS or storage not in STORAGES:

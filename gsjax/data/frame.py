@@ -61,7 +61,17 @@ def host_frame(color: np.ndarray, depth: np.ndarray, c2w: np.ndarray, pose_valid
 
 
 def stack_frames(frames: list[Frame]) -> Frame:
-    """Stack frames of equal shapes into one Frame with a leading axis [T, ...] (numpy in, numpy out)."""
+    """Stack frames of equal shapes into one Frame with a leading axis (numpy in, numpy out).
+
+    Args:
+      frames: T >= 1 host frames (numpy leaves) of equal shapes.
+
+    Returns:
+      A Frame whose every leaf has a leading axis of T (color [T, H, W, 3], ..., index [T]), numpy arrays.
+
+    Raises:
+      ValueError: ``frames`` is empty.
+    """
     if not frames:
         raise ValueError("stack_frames needs at least one frame")
     return jax.tree.map(lambda *leaves: np.stack(leaves), *frames)

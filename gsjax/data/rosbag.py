@@ -55,7 +55,9 @@ class BagOptions:
     """How to read a bag (``gsjax run --dataset rosbag`` flags in brackets).
 
     Attributes:
-      rgb_topic, depth_topic, camera_info_topic: the topics (``--rgb-topic``, ...); None: chosen by message type.
+      rgb_topic: the colour topic (``--rgb-topic``); None: chosen by message type.
+      depth_topic: the depth topic (``--depth-topic``); None: chosen by message type.
+      camera_info_topic: the ``CameraInfo`` topic (``--camera-info-topic``); None: chosen by message type.
       max_time_diff: the largest colour-depth stamp difference of a pair, and of a frame and its ground-truth pose
         (s; ``--max-time-diff``).
       groundtruth: a TUM trajectory file of camera-to-world poses (``--groundtruth``).

@@ -21,6 +21,21 @@ ReadRGBD = Callable[[int], tuple[np.ndarray, np.ndarray]]
 class Sequence:
     """An RGB-D sequence that reads (or renders) frames on demand; nothing is cached.
 
+    Built by the readers (:func:`gsjax.data.open_sequence`); the arguments are keyword-only.
+
+    Args:
+      name: a short name (usually the directory's).
+      intrinsics: the camera of the frames as ``read_rgbd`` returns them.
+      timestamps: [T] timestamps (s).
+      c2w: [T, 4, 4] ground-truth camera-to-world poses (m); entries where ``pose_valid`` is False are ignored.
+      pose_valid: [T] bool, which frames have a ground-truth pose.
+      read_rgbd: ``i -> (colour [H, W, 3] float32 in [0, 1], depth [H, W] float32 m)`` for position i.
+      files: (colour path, depth path) per frame, or None where frames are not read from files.
+      depth_scale: raw depth units per metre of the files read, or None.
+
+    Raises:
+      ValueError: the shapes of ``c2w`` or ``pose_valid`` do not match ``timestamps``.
+
     Attributes:
       name: a short name (usually the directory's).
       intrinsics: :class:`gsjax.camera.Intrinsics` of the frames as returned (after downscaling).
@@ -69,7 +84,14 @@ class Sequence:
             yield self[i]
 
     def chunks(self, size: int) -> Iterator[Frame]:
-        """Consecutive stacked Frames with a leading axis of ``size`` (the last may be shorter), for ``lax.scan``."""
+        """The sequence as consecutive stacked Frames, for ``lax.scan``; each chunk is read when reached.
+
+        Args:
+          size: frames per chunk, a positive int.
+
+        Yields:
+          Frames of jax arrays with a leading axis of ``size`` (the last chunk may be shorter).
+        """
         if not isinstance(size, int) or size < 1:
             raise ValueError(f"chunk size must be a positive int, got {size!r}")
         for begin in range(0, len(self), size):
@@ -77,21 +99,52 @@ class Sequence:
             yield to_device(stack_frames([self.read_host(i) for i in range(begin, end)]))
 
     def gt_trajectory(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Ground truth without reading any image: (timestamps [T] float64 s, camera-to-world poses [T, 4, 4]
-        float64 m (identity where invalid), valid [T] bool)."""
+        """The ground truth, without reading any image (copies).
+
+        Returns:
+          timestamps: [T] float64 (s).
+          c2w: [T, 4, 4] float64 camera-to-world poses (m), as the dataset gives them; the identity where invalid.
+          valid: [T] bool, which frames have a ground-truth pose.
+        """
         return self.timestamps.copy(), self._c2w.copy(), self._pose_valid.copy()
 
     def frame_files(self, index: int) -> tuple[Path, Path] | None:
-        """(colour path, depth path) of frame ``index``, or None where frames are not read from files."""
+        """The files a frame is read from.
+
+        Args:
+          index: the frame's position in the sequence.
+
+        Returns:
+          (colour path, depth path), or None where frames are not read from files.
+        """
         return None if self._files is None else self._files[index]
 
     def describe_frame(self, index: int) -> str:
-        """``frame i`` and, where frames come from files, its depth image: for messages about a frame."""
+        """A frame's name for messages.
+
+        Args:
+          index: the frame's position in the sequence.
+
+        Returns:
+          ``frame i`` and, where frames come from files, its depth image's path in brackets.
+        """
         files = self.frame_files(index)
         return f"frame {index}" if files is None else f"frame {index} ({files[1]})"
 
     def read_host(self, index: int) -> Frame:
-        """Frame ``index`` as numpy arrays (read now, no device transfer): for writers and host-side tools."""
+        """Read one frame as numpy arrays (now, no device transfer): for writers and host-side tools.
+
+        Args:
+          index: the frame's position; negative counts from the end.
+
+        Returns:
+          The Frame, numpy leaves of the canonical dtypes (float32 images, [4, 4] float32 c2w, int32 index).
+
+        Raises:
+          TypeError: ``index`` is not an int.
+          IndexError: ``index`` is out of range.
+          DatasetError: the images read do not have the size of ``intrinsics``.
+        """
         if not isinstance(index, (int, np.integer)):
             raise TypeError(f"frame index must be an int, got {type(index).__name__}")
         if not -len(self) <= index < len(self):

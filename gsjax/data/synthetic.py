@@ -38,8 +38,10 @@ class SyntheticConfig:
     """Settings of a synthetic sequence (see the module docstring for the defaults' rationale).
 
     Attributes:
-      width, height: image size (px).
-      fx, fy: focal lengths (px); None gives 525/640 * width (Kinect-like). Principal point at the image centre.
+      width: image width (px).
+      height: image height (px).
+      fx: focal length along x (px); None gives 525/640 * width (Kinect-like). Principal point at the image centre.
+      fy: focal length along y (px); None gives 525/640 * width, like ``fx``.
       num_frames: number of frames.
       fps: frame rate (Hz); timestamps are frame / fps (s).
       speed: time-scale of the motion; frame i at speed s shows the pose of frame s * i at speed 1.
@@ -73,12 +75,21 @@ class SyntheticConfig:
         check_fields(self, "synthetic")
 
     def with_sensor_noise(self) -> "SyntheticConfig":
-        """This config with Kinect-like sensor effects: 1.5 mm depth noise at 1 m (6 mm at 2 m), holes at depth
-        edges, colour noise of 1/100 and 3-sample motion blur over half the frame interval."""
+        """This config with Kinect-like sensor effects.
+
+        Returns:
+          A copy with 1.5 mm depth noise at 1 m (6 mm at 2 m), holes at depth edges, colour noise of 1/100 and
+          3-sample motion blur over the shutter (half the frame interval by default).
+        """
         return dataclasses.replace(self, depth_noise=0.0015, depth_holes=True, color_noise=0.01, motion_blur=3)
 
     def intrinsics(self) -> Intrinsics:
-        """The pinhole intrinsics of the rendered frames."""
+        """The pinhole camera of the rendered frames.
+
+        Returns:
+          float32 intrinsics of ``width`` x ``height``, principal point at the image centre ((W - 1) / 2,
+          (H - 1) / 2).
+        """
         fx = self.fx if self.fx is not None else _FOCAL_PER_WIDTH * self.width
         fy = self.fy if self.fy is not None else _FOCAL_PER_WIDTH * self.width
         return make_intrinsics(fx, fy, (self.width - 1) / 2.0, (self.height - 1) / 2.0, self.height, self.width)
@@ -185,7 +196,14 @@ def render_frame(config: SyntheticConfig, frame: int) -> tuple[np.ndarray, np.nd
 
 
 def synthetic_sequence(config: SyntheticConfig = SyntheticConfig()) -> Sequence:
-    """A :class:`Sequence` of ``config.num_frames`` frames rendered on demand, with exact GT poses (all valid)."""
+    """The synthetic room as a sequence whose frames are rendered on demand.
+
+    Args:
+      config: size, length, motion and sensor effects.
+
+    Returns:
+      A Sequence of ``config.num_frames`` frames at ``config.fps``, with exact ground-truth poses (all valid).
+    """
     frames = np.arange(config.num_frames)
     return Sequence(
         name=f"synthetic-seed{config.seed}",

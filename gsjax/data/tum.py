@@ -201,12 +201,19 @@ def _tum_intrinsics(path: Path, first_color: Path) -> Intrinsics:
 
 
 def write_tum(sequence: Sequence, out_dir: Path) -> Path:
-    """Write a sequence in the TUM RGB-D layout that :func:`list_tum` reads back; returns ``out_dir``.
+    """Write a sequence in the TUM RGB-D layout that :func:`list_tum` reads back.
 
     Colour as 8-bit PNG (rounded), depth as 16-bit PNG with 5000 units per metre (rounded; depths beyond
     65535 / 5000 = 13.1 m are an error), ``groundtruth.txt`` (:func:`gsjax.io.trajectory.write_tum_trajectory`)
     with a line for each frame with a valid pose only (a missing pose has no line, as in TUM's own files), and
     ``intrinsics.json`` (fx, fy, cx, cy, width, height). Every file is written atomically.
+
+    Args:
+      sequence: the frames (read one at a time) and their ground truth.
+      out_dir: the sequence directory (created if missing).
+
+    Returns:
+      ``out_dir``.
     """
     from gsjax.io.images import save_color_png, save_depth_png  # imported here: it pulls in matplotlib
 

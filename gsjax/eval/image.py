@@ -92,14 +92,33 @@ def _check_images(a: jax.Array, b: jax.Array) -> None:
 
 @jax.jit
 def psnr(image: jax.Array, reference: jax.Array) -> jax.Array:
-    """PSNR (dB) from the MSE over all pixels and channels; data range 1. Images [H, W, C]."""
+    """PSNR from the MSE over all pixels and channels (dm-pix), data range 1.
+
+    Args:
+      image: [H, W, C] float image, data range 1.
+      reference: [H, W, C] reference image, same shape.
+
+    Returns:
+      [] PSNR (dB).
+
+    Raises:
+      ValueError: the shapes differ or are not [H, W, C].
+    """
     _check_images(image, reference)
     return dm_pix.psnr(image, reference)
 
 
 @jax.jit
 def psnr_splatam(image: jax.Array, reference: jax.Array) -> jax.Array:
-    """SplaTAM's PSNR (dB): ``20 log10(1 / sqrt(MSE_c))`` per channel c, then the mean over channels."""
+    """SplaTAM's PSNR: ``20 log10(1 / sqrt(MSE_c))`` per channel c, then the mean over channels.
+
+    Args:
+      image: [H, W, C] float image, data range 1.
+      reference: [H, W, C] reference image, same shape.
+
+    Returns:
+      [] mean per-channel PSNR (dB).
+    """
     _check_images(image, reference)
     mse = jnp.mean(jnp.square(image - reference), axis=(0, 1))
     return jnp.mean(-10.0 * jnp.log10(mse))
@@ -107,7 +126,15 @@ def psnr_splatam(image: jax.Array, reference: jax.Array) -> jax.Array:
 
 @jax.jit
 def ssim(image: jax.Array, reference: jax.Array) -> jax.Array:
-    """Mean SSIM over the 'valid' region (no padding) and channels (dm-pix; window 11, sigma 1.5). [H, W, C]."""
+    """Mean SSIM over the 'valid' region (no padding) and channels (dm-pix; window 11, sigma 1.5).
+
+    Args:
+      image: [H, W, C] float image, data range 1.
+      reference: [H, W, C] reference image, same shape.
+
+    Returns:
+      [] mean SSIM, at most 1.
+    """
     _check_images(image, reference)
     return dm_pix.ssim(
         image, reference, max_val=1.0, filter_size=WINDOW_SIZE, filter_sigma=WINDOW_SIGMA, k1=K1, k2=K2
@@ -118,7 +145,15 @@ def ssim(image: jax.Array, reference: jax.Array) -> jax.Array:
 def ssim_splatam(image: jax.Array, reference: jax.Array) -> jax.Array:
     """SplaTAM's training SSIM ([S] ``calc_ssim``): 11x11 Gaussian window (sigma 1.5), zero padding of 5 px so the
     map covers every pixel, C1 = 0.01^2, C2 = 0.03^2, mean over pixels and channels. Differentiable in both
-    arguments (no clipping of the local variances). Images [H, W, C]."""
+    arguments (no clipping of the local variances).
+
+    Args:
+      image: [H, W, C] float image, data range 1.
+      reference: [H, W, C] reference image, same shape.
+
+    Returns:
+      [] mean SSIM, at most 1.
+    """
     _check_images(image, reference)
     return jnp.mean(_ssim_maps(image, reference, WINDOW_SIZE // 2)[0])
 
@@ -137,8 +172,17 @@ def ms_ssim(image: jax.Array, reference: jax.Array, weights: tuple[float, ...] =
     windows (sigma 1.5), 2x average pooling between scales, per channel
     ``prod_{s<last} relu(cs_s)^w_s * relu(ssim_last)^w_last``, then the mean over channels.
 
-    Images [H, W, C] with ``min(H, W) > 10 * 2^(len(weights) - 1)`` (161 px for 5 scales), else ValueError.
-    ``weights`` is a static tuple (one compile per distinct value).
+    Args:
+      image: [H, W, C] float image, data range 1, with ``min(H, W) > 10 * 2^(len(weights) - 1)`` (161 px for 5
+        scales).
+      reference: [H, W, C] reference image, same shape.
+      weights: one weight per scale, finest first; a static tuple (one compile per distinct value).
+
+    Returns:
+      [] MS-SSIM, in [0, 1].
+
+    Raises:
+      ValueError: the images are too small for ``len(weights)`` scales, or their shapes differ.
     """
     _check_images(image, reference)
     levels = len(weights)
@@ -167,7 +211,14 @@ def depth_l1(depth: jax.Array, depth_gt: jax.Array) -> jax.Array:
     """SplaTAM's depth L1 (m): ``sum |D - D_gt| valid / sum valid`` over pixels with valid GT depth. [H, W].
 
     Invalid pixels contribute nothing even where ``depth`` is not finite (SplaTAM multiplies by the mask, which
-    gives NaN there). With no valid pixel the result is NaN.
+    gives NaN there).
+
+    Args:
+      depth: [H, W] rendered or estimated depth (m).
+      depth_gt: [H, W] ground-truth depth (m); valid where positive and finite.
+
+    Returns:
+      [] mean absolute depth error (m) over valid pixels; NaN with no valid pixel.
     """
     valid = valid_depth_mask(depth_gt)
     err = jnp.where(valid, jnp.abs(depth - depth_gt), 0.0)
@@ -191,6 +242,12 @@ def render_metrics_splatam(color: jax.Array, depth: jax.Array, color_gt: jax.Arr
     the denominators); the render is not clamped. Colour [H, W, 3] in [0, 1], depth [H, W] (m). Images smaller than
     MS-SSIM's 161 px use its first scales only (weights renormalised; ``ms_ssim_scales`` says how many), and SSIM is
     reported as well.
+
+    Args:
+      color: [H, W, 3] rendered colour in [0, 1].
+      depth: [H, W] rendered depth (m).
+      color_gt: [H, W, 3] ground-truth colour in [0, 1].
+      depth_gt: [H, W] ground-truth depth (m); valid where positive and finite.
 
     Returns:
       {"psnr_db": psnr_splatam, "ms_ssim": ms_ssim, "ms_ssim_scales": n, "ssim": ssim, "depth_l1_m": depth_l1}.

@@ -244,7 +244,7 @@ class RunMetrics:
           value: the parsed JSON object; a key it lacks takes its default, a key the record does not know is ignored.
 
         Returns:
-          The :class:`RunMetrics`.
+          The record, a :class:`RunMetrics`.
 
         Raises:
           ValueError: naming a key whose value has the wrong shape, or a required key that is missing.
@@ -259,7 +259,7 @@ def read_run_metrics(path: str | Path) -> RunMetrics:
       path: the file.
 
     Returns:
-      The :class:`RunMetrics` it holds.
+      The record it holds, a :class:`RunMetrics`.
 
     Raises:
       ValueError: naming the file, when it cannot be read or is not a ``metrics.json``.

@@ -18,9 +18,18 @@ import numpy.typing as npt
 
 
 class PairedDifference(NamedTuple):
-    """``mean`` of b - a over the ``n`` pairs; ``low``, ``high``: its ``confidence`` bootstrap interval; ``t_low``,
-    ``t_high``: Student's t interval; ``excludes_zero``: both intervals lie entirely on one side of 0 (the
-    difference is not explained by the seeds)."""
+    """A paired difference b - a with its confidence intervals (NaN bounds with fewer than two pairs).
+
+    Attributes:
+      mean: the mean of b - a over the pairs (units of a and b).
+      low: lower bound of the percentile bootstrap interval.
+      high: upper bound of the percentile bootstrap interval.
+      n: the number of pairs used (both values finite).
+      confidence: the intervals' level, in (0, 1).
+      excludes_zero: both intervals lie entirely on one side of 0 (the difference is not explained by the seeds).
+      t_low: lower bound of Student's t interval.
+      t_high: upper bound of Student's t interval.
+    """
 
     mean: float
     low: float
@@ -34,9 +43,23 @@ class PairedDifference(NamedTuple):
 
 def paired_difference(a: npt.ArrayLike, b: npt.ArrayLike, *, confidence: float = 0.95, resamples: int = 10_000,
                       seed: int = 0) -> PairedDifference:
-    """The mean of ``b - a`` [n] over pairs (entry i of both ran on the same seed and sequence) and its percentile
-    bootstrap interval: the pairs' differences resampled with replacement ``resamples`` times. Pairs with a
-    non-finite value are dropped; fewer than two pairs give the mean with a NaN interval."""
+    """The mean of ``b - a`` over pairs and its percentile bootstrap interval (the pairs' differences resampled
+    with replacement) beside Student's t interval.
+
+    Args:
+      a: [n] values of the first condition (flattened); entry i of ``a`` and ``b`` ran on the same seed and sequence.
+      b: [n] values of the second condition.
+      confidence: the intervals' level, in (0, 1).
+      resamples: bootstrap resamples.
+      seed: seed of the resampling.
+
+    Returns:
+      The difference; pairs with a non-finite value are dropped, and fewer than two pairs give the mean with NaN
+      intervals.
+
+    Raises:
+      ValueError: ``a`` and ``b`` differ in size, or ``confidence`` is outside (0, 1).
+    """
     a, b = np.asarray(a, np.float64).ravel(), np.asarray(b, np.float64).ravel()
     if a.shape != b.shape:
         raise ValueError(f"paired_difference needs as many values in a as in b, got {a.size} and {b.size}")

@@ -36,25 +36,50 @@ MIN_FRAMES = 3
 
 @dataclasses.dataclass(frozen=True)
 class Alignment:
-    """Similarity transform ``x -> scale * rotation @ x + translation`` (float64; metres)."""
+    """Similarity transform ``x -> scale * rotation @ x + translation`` (float64; metres).
+
+    Attributes:
+      rotation: [3, 3] float64 rotation.
+      translation: [3] float64 translation (m).
+      scale: the scale factor (1 for a rigid alignment).
+    """
 
     rotation: np.ndarray  # [3, 3]
     translation: np.ndarray  # [3]
     scale: float = 1.0
 
     def apply_points(self, points: np.ndarray) -> np.ndarray:
-        """Points [..., 3] -> transformed points [..., 3]."""
+        """Apply the transform to points.
+
+        Args:
+          points: [..., 3] points (m).
+
+        Returns:
+          [..., 3] float64 transformed points (m).
+        """
         return self.scale * np.asarray(points, np.float64) @ self.rotation.T + self.translation
 
     def apply_c2w(self, c2w: np.ndarray) -> np.ndarray:
-        """Camera-to-world poses [..., 4, 4] expressed in the aligned world: ``R_i -> R R_i``, centres mapped as
-        points (the scale acts on positions only, so the result stays a rigid transform)."""
+        """Express camera-to-world poses in the aligned world: ``R_i -> R R_i``, centres mapped as points (the
+        scale acts on positions only, so the result stays a rigid transform).
+
+        Args:
+          c2w: [..., 4, 4] camera-to-world poses (m).
+
+        Returns:
+          [..., 4, 4] float64 camera-to-world poses in the aligned world (a copy).
+        """
         out = np.array(c2w, np.float64, copy=True)
         out[..., :3, :3] = self.rotation @ out[..., :3, :3]
         out[..., :3, 3] = self.apply_points(out[..., :3, 3])
         return out
 
     def to_json(self) -> dict:
+        """The transform for ``metrics.json``.
+
+        Returns:
+          A dict: "rotation" (3 lists of 3 floats), "translation_m" (3 floats, m), "scale" (a float).
+        """
         return {
             "rotation": self.rotation.tolist(),
             "translation_m": self.translation.tolist(),
@@ -65,10 +90,11 @@ class Alignment:
 class AteResult(NamedTuple):
     """An absolute trajectory error.
 
-    value_m: the statistic (RMSE for :func:`ate_rmse_c2w`, mean for :func:`ate_splatam_mean_w2c`), metres.
-    errors_m: [n_used] per-frame distances after alignment (m), in frame order.
-    alignment: the transform applied to the estimate's positions.
-    used: [N] bool, frames that entered the metric.
+    Attributes:
+      value_m: the statistic (RMSE for :func:`ate_rmse_c2w`, mean for :func:`ate_splatam_mean_w2c`), metres.
+      errors_m: [n_used] float64 per-frame distances after alignment (m), in frame order.
+      alignment: the transform applied to the estimate's positions.
+      used: [N] bool, frames that entered the metric.
     """
 
     value_m: float
@@ -80,9 +106,10 @@ class AteResult(NamedTuple):
 class RpeResult(NamedTuple):
     """Relative pose errors between consecutive frames (pairs (i, i+1) with both frames valid).
 
-    trans_errors_m: [P] translation error of each pair's relative motion (m).
-    rot_errors_deg: [P] rotation angle of each pair's relative-motion error (deg).
-    pairs: [P, 2] int frame indices (i, i+1).
+    Attributes:
+      trans_errors_m: [P] float64 translation error of each pair's relative motion (m).
+      rot_errors_deg: [P] float64 rotation angle of each pair's relative-motion error (deg).
+      pairs: [P, 2] int frame indices (i, i+1).
     """
 
     trans_errors_m: np.ndarray
@@ -91,18 +118,22 @@ class RpeResult(NamedTuple):
 
     @property
     def trans_rmse_m(self) -> float:
+        """RMSE of the translation errors (m); NaN without a pair."""
         return _rmse(self.trans_errors_m)
 
     @property
     def trans_mean_m(self) -> float:
+        """Mean of the translation errors (m); NaN without a pair."""
         return _mean(self.trans_errors_m)
 
     @property
     def rot_rmse_deg(self) -> float:
+        """RMSE of the rotation errors (deg); NaN without a pair."""
         return _rmse(self.rot_errors_deg)
 
     @property
     def rot_mean_deg(self) -> float:
+        """Mean of the rotation errors (deg); NaN without a pair."""
         return _mean(self.rot_errors_deg)
 
 
@@ -122,6 +153,17 @@ def umeyama_alignment(source: np.ndarray, target: np.ndarray, with_scale: bool =
 
     Minimises ``sum_i |target_i - (s R source_i + t)|^2`` (Umeyama, PAMI 1991, eqs. 34-43; for ``s = 1`` this is
     Horn's closed form): SVD of the cross-covariance with the reflection fix ``det(R) = +1``.
+
+    Args:
+      source: [n, 3] points to move (m).
+      target: [n, 3] points to move them onto, row i matching row i of ``source`` (m).
+      with_scale: estimate the scale s too (similarity); False: s = 1 (rigid).
+
+    Returns:
+      The float64 transform mapping ``source`` onto ``target``.
+
+    Raises:
+      ValueError: the shapes are not both [n, 3], or all source points coincide (``with_scale``).
     """
     source = np.asarray(source, np.float64)
     target = np.asarray(target, np.float64)
@@ -190,6 +232,13 @@ def ate_rmse_c2w(
       gt_c2w: [N, 4, 4] ground-truth camera-to-world poses (m).
       valid: optional [N] bool; frames with False, or with non-finite GT, are skipped.
       with_scale: similarity (Umeyama) instead of rigid (Horn) alignment, for scale-free estimates.
+
+    Returns:
+      The RMSE (m), per-frame errors, alignment and frames used.
+
+    Raises:
+      ValueError: a shape is wrong, an estimated pose is not finite where the GT is valid, or fewer than 3 frames
+        have valid GT.
     """
     est, gt, used = _frames_used(est_c2w, gt_c2w, valid)
     est_c, gt_c = est[used, :3, 3], gt[used, :3, 3]
@@ -262,7 +311,17 @@ def ate_splatam_mean_w2c(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike,
     used frame (``c2w_0^{-1} c2w_i``). SplaTAM aligns the GT onto the estimate; for a rigid alignment the residual
     distances are the same either way, and here (as in :func:`ate_rmse_c2w`) the estimate is aligned onto the GT.
 
-    Args: as :func:`ate_rmse_c2w` (no scale: SplaTAM has none).
+    Args:
+      est_c2w: [N, 4, 4] estimated camera-to-world poses (m), frame i matching frame i of ``gt_c2w``.
+      gt_c2w: [N, 4, 4] ground-truth camera-to-world poses (m).
+      valid: optional [N] bool; frames with False, or with non-finite GT, are skipped.
+
+    Returns:
+      The mean distance (m) as ``value_m``, per-frame errors, the rigid alignment (no scale: SplaTAM has none) and
+      the frames used.
+
+    Raises:
+      ValueError: as :func:`ate_rmse_c2w`.
     """
     est, gt, used = _frames_used(est_c2w, gt_c2w, valid)
     est, gt = est[used], gt[used]
@@ -279,7 +338,18 @@ def rpe(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike, valid: npt.ArrayLike | No
     For each pair (i, i+1) where both frames are used, ``E = (Q_i^-1 Q_{i+1})^-1 (P_i^-1 P_{i+1})`` with Q the GT
     and P the estimate; the errors are ``|trans(E)|`` (m) and ``angle(E)`` (deg). Pairs spanning a skipped
     frame are left out (their motion is not one frame's). RPE does not depend on a rigid alignment; for a scale
-    alignment, pass the aligned estimate (:meth:`Alignment.apply_c2w`). Needs at least 3 used frames, like ATE.
+    alignment, pass the aligned estimate (:meth:`Alignment.apply_c2w`).
+
+    Args:
+      est_c2w: [N, 4, 4] estimated camera-to-world poses (m), frame i matching frame i of ``gt_c2w``.
+      gt_c2w: [N, 4, 4] ground-truth camera-to-world poses (m).
+      valid: optional [N] bool; frames with False, or with non-finite GT, are skipped.
+
+    Returns:
+      The per-pair errors (m, deg) and the pairs.
+
+    Raises:
+      ValueError: as :func:`ate_rmse_c2w` (at least 3 used frames are needed, like ATE).
     """
     est, gt, used = _frames_used(est_c2w, gt_c2w, valid)
     i = np.flatnonzero(used[:-1] & used[1:])
@@ -326,8 +396,11 @@ def evaluate_trajectory(
     docstring) and RPE are computed on the remaining frames.
 
     Args:
-      est_timestamps: [N] s; est_c2w: [N, 4, 4] camera-to-world (m).
-      gt_timestamps: [M] s; gt_c2w: [M, 4, 4] camera-to-world (m); gt_valid: optional [M] bool.
+      est_timestamps: [N] timestamps of the estimate (s).
+      est_c2w: [N, 4, 4] estimated camera-to-world poses (m).
+      gt_timestamps: [M] timestamps of the ground truth (s).
+      gt_c2w: [M, 4, 4] ground-truth camera-to-world poses (m).
+      gt_valid: optional [M] bool, which GT poses to use.
       max_dt: association tolerance (s).
       with_scale: similarity alignment for ``ate_*_c2w`` and RPE (the SplaTAM variant stays rigid).
 
@@ -337,6 +410,10 @@ def evaluate_trajectory(
       (``num_*``), the alignment, ``per_frame`` (the per-frame errors behind the statistics: ``est_index`` and
       ``ate_c2w_m`` of every evaluated estimate row; ``rpe_est_index``, the second row of each RPE pair, with
       ``rpe_trans_m`` and ``rpe_rot_deg``) and ``definitions``.
+
+    Raises:
+      ValueError: a shape is wrong, no estimated pose has a GT timestamp within ``max_dt``, or as
+        :func:`ate_rmse_c2w` on the associated frames.
     """
     est_c2w = _as_poses(est_c2w, "est_c2w")
     gt_c2w = _as_poses(gt_c2w, "gt_c2w")

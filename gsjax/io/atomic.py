@@ -18,9 +18,19 @@ _TEMPORARY = re.compile(r"\..+\.\d+\.[0-9a-f]{8}\.tmp")
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically; the parent directory must exist. Returns the path.
+    """Write bytes to a file atomically.
 
     A new file gets the usual permissions (0o666 minus the umask); an existing file keeps its mode.
+
+    Args:
+      path: the destination; its parent directory must exist.
+      data: the file's whole content.
+
+    Returns:
+      ``path`` as a Path.
+
+    Raises:
+      FileNotFoundError: the parent directory does not exist.
     """
     path = Path(path)
     if not path.parent.is_dir():
@@ -57,12 +67,34 @@ def _fsync_dir(directory: Path) -> None:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> Path:
-    """Write a string atomically (no newline translation)."""
+    """Write a string to a file atomically (no newline translation).
+
+    Args:
+      path: the destination; its parent directory must exist.
+      text: the file's whole content.
+      encoding: the text encoding.
+
+    Returns:
+      ``path`` as a Path.
+    """
     return atomic_write_bytes(path, text.encode(encoding))
 
 
 def atomic_write_json(path: str | os.PathLike, obj: Any, indent: int = 2) -> Path:
-    """Write ``obj`` as JSON atomically. NaN/inf are rejected (they are not JSON); use None instead."""
+    """Write an object as JSON atomically, keys in their order, with a final newline.
+
+    Args:
+      path: the destination; its parent directory must exist.
+      obj: a JSON-serialisable object; NaN and inf are rejected (they are not JSON): use None instead.
+      indent: spaces per indentation level.
+
+    Returns:
+      ``path`` as a Path.
+
+    Raises:
+      ValueError: ``obj`` holds NaN or inf.
+      TypeError: ``obj`` holds something that is not JSON-serialisable.
+    """
     return atomic_write_text(path, json.dumps(obj, indent=indent, allow_nan=False, sort_keys=False) + "\n")
 
 

@@ -58,7 +58,15 @@ def gaussians_to_ply_bytes(gaussians: Gaussians) -> bytes:
 
 
 def write_ply(path: str | os.PathLike, gaussians: Gaussians) -> Path:
-    """Write the active Gaussians to ``path`` as a standard 3DGS PLY file, atomically. Returns the path."""
+    """Write the active Gaussians as a standard 3DGS PLY file (binary little-endian float32), atomically.
+
+    Args:
+      path: the destination; its parent directory must exist.
+      gaussians: the map; inactive slots are not written.
+
+    Returns:
+      ``path`` as a Path.
+    """
     return atomic_write_bytes(path, gaussians_to_ply_bytes(gaussians))
 
 
@@ -99,7 +107,11 @@ def read_ply(path: str | os.PathLike, capacity: int | None = None) -> Gaussians:
     taken as logit and log std-dev. Rotations are ignored (irrelevant for isotropic Gaussians).
 
     Args:
+      path: the PLY file.
       capacity: number of slots of the returned map (default: the number of Gaussians in the file).
+
+    Returns:
+      Gaussians (float32) of ``capacity`` slots, the file's n Gaussians first and active, the rest free.
 
     Raises:
       ValueError: naming the file if it is malformed, lacks a required property, or holds anisotropic Gaussians.

@@ -25,6 +25,9 @@ HEADER = "# timestamp tx ty tz qx qy qz qw (camera-to-world, metres)\n"
 def read_tum_trajectory(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read a TUM trajectory file.
 
+    Args:
+      path: the file (``timestamp tx ty tz qx qy qz qw`` lines, camera-to-world, m).
+
     Returns:
       (timestamps [N] float64 seconds, c2w [N, 4, 4] float64 metres).
 
@@ -90,6 +93,17 @@ def format_tum_trajectory(timestamps: npt.ArrayLike, c2w: npt.ArrayLike) -> str:
 
 
 def write_tum_trajectory(path: str | os.PathLike, timestamps: npt.ArrayLike, c2w: npt.ArrayLike) -> Path:
-    """Write camera-to-world poses [N, 4, 4] with timestamps [N] (s) as a TUM trajectory file, atomically.
-    Non-finite poses are written as ``nan`` (read back as invalid poses)."""
+    """Write poses as a TUM trajectory file (``timestamp tx ty tz qx qy qz qw``), atomically.
+
+    Args:
+      path: the destination; its parent directory must exist.
+      timestamps: [N] timestamps (s), finite and strictly increasing.
+      c2w: [N, 4, 4] camera-to-world poses (m); a non-finite pose is written as ``nan`` (read back as invalid).
+
+    Returns:
+      ``path`` as a Path.
+
+    Raises:
+      ValueError: the shapes do not match, or the timestamps are not finite and strictly increasing.
+    """
     return atomic_write_text(path, format_tum_trajectory(timestamps, c2w))

@@ -49,8 +49,15 @@ class RenderStats(NamedTuple):
 
 
 class Render(NamedTuple):
-    """Output of :func:`render`: color [H, W, 3], depth [H, W] (sum w z, m), silhouette [H, W] (sum w),
-    depth_sq [H, W] (sum w z^2, m^2), and ``stats`` (:class:`RenderStats`)."""
+    """Output of :func:`render`; w are the compositing weights (alpha times transmittance), z camera depths.
+
+    Attributes:
+      color: [H, W, 3] float32 ``sum w rgb`` (background 0).
+      depth: [H, W] float32 ``sum w z`` (m), not normalised by the silhouette.
+      silhouette: [H, W] float32 ``sum w``, in [0, 1].
+      depth_sq: [H, W] float32 ``sum w z^2`` (m^2).
+      stats: the render's diagnostics.
+    """
 
     color: jax.Array
     depth: jax.Array
@@ -156,9 +163,11 @@ class SlotSelection(NamedTuple):
     Attributes:
       ids: [K, P] int32 Gaussian indices front to back, slot-major; -1 marks an empty slot.
       num_kept: [P] int32 contributors of each pixel at that pose (counted through its whole tile list).
-      out_of_k, cut_by_list: [P] bool, the walk was cut by K / by the end of an incomplete tile list.
+      out_of_k: [P] bool, the walk was cut by K.
+      cut_by_list: [P] bool, the walk was cut by the end of an incomplete tile list.
       residual_list: [P] float32 transmittance left at the end of the list (meaningful where ``cut_by_list``).
-      tiles_overflowed, intersections_dropped: [] int32, as :class:`RenderStats`.
+      tiles_overflowed: [] int32, as :class:`RenderStats`.
+      intersections_dropped: [] int32, as :class:`RenderStats`.
     """
 
     ids: jax.Array
@@ -192,6 +201,18 @@ def select_slots(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics,
     pose (centres, footprints, alphas, depths and their gradients) recomputed there: exact for those slots, but a
     Gaussian that would enter or leave a pixel's first K there does not, and the stop rule is not re-applied. The
     tracker uses it to skip binning and the walk on most iterations (``tracking.reselect_every``).
+
+    Args:
+      gaussians: the map, as :func:`render`.
+      w2c: [4, 4] world-to-camera rigid transform (m) to select at.
+      intrinsics: the camera; the renders that use the selection must have the same.
+      settings: the rasterizer settings; the renders that use the selection must have the same.
+
+    Returns:
+      The slots of every pixel of the tile grid (no gradient flows through it).
+
+    Raises:
+      ValueError: naming the argument, as :func:`render`.
     """
     check_render_inputs(gaussians, w2c, intrinsics, settings)
     return _select(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, _selection_settings(settings))

@@ -25,11 +25,12 @@ class RasterSettings:
       tile_size: tile side (px).
       tile_capacity: M, depth-sorted candidates kept per tile.
       max_contributors: K, contributor slots per pixel (the first K along the front-to-back walk).
-      intersections_per_gaussian, intersections_per_pixel: size the static buffer of (tile, Gaussian) pairs,
+      intersections_per_gaussian: a in the size of the static buffer of (tile, Gaussian) pairs,
         ``L = max(min(ceil(a N), ceil(b H W)), min(N, tile_capacity) * num_tiles)`` for N slots: a few per Gaussian,
         bounded by a few per pixel when the map holds many more Gaussians than are in view (a SLAM map's capacity),
         and never less than every tile's full list when N is small. Pairs beyond L (the farthest) are counted
         in the stats.
+      intersections_per_pixel: b in that size L, pairs per pixel (see ``intersections_per_gaussian``).
       tiles_per_batch: at most this many tiles are processed together in the XLA selection pass (bounds its
         memory; the tiles are split into equal batches).
       near: near-plane distance (m); Gaussians with camera z <= near are culled.
@@ -74,12 +75,24 @@ class RasterSettings:
         return self.backend == "pallas" or (self.backend == "auto" and pallas.on_gpu())
 
     def for_forward_mode(self) -> "RasterSettings":
-        """These settings on the XLA path when they would use Pallas: ``jax.jvp``/``jax.jacfwd`` need it (the
-        Pallas compositing is a ``custom_vjp``). The two paths give the same renders."""
+        """These settings for forward-mode differentiation: ``jax.jvp``/``jax.jacfwd`` need the XLA path (the
+        Pallas compositing is a ``custom_vjp``). The two paths give the same renders.
+
+        Returns:
+          A copy with ``backend="xla"`` when these settings would use Pallas, else these settings.
+        """
         return dataclasses.replace(self, backend="xla") if self.uses_pallas else self
 
     def intersection_capacity(self, num_gaussians: int, grid: TileGrid) -> int:
-        """The static number L of (tile, Gaussian) pairs binned for a map of ``num_gaussians`` slots."""
+        """The static number L of (tile, Gaussian) pairs binned (see ``intersections_per_gaussian``).
+
+        Args:
+          num_gaussians: N, the map's slots.
+          grid: the image's tile grid (its size and number of tiles).
+
+        Returns:
+          L, a Python int.
+        """
         per_gaussian = math.ceil(self.intersections_per_gaussian * num_gaussians)
         per_pixel = math.ceil(self.intersections_per_pixel * grid.width * grid.height)
         full_lists = min(num_gaussians, self.tile_capacity) * grid.num_tiles

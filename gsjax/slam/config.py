@@ -41,12 +41,16 @@ class MappingConfig:
         pixels (every other one of each row and column, the four such grids in turn; the render there is the full
         render's, see ``tracking.strided_iters``), then the ``iters`` on every pixel, one Adam over all.
       window_size: views per window: overlapping keyframes + the last keyframe + the current frame.
-      lr_means, lr_rgb, lr_opacity, lr_scale: Adam step sizes of means (m), colours, logit opacities, log scales.
+      lr_means: Adam step size of the means (m).
+      lr_rgb: Adam step size of the colours.
+      lr_opacity: Adam step size of the logit opacities.
+      lr_scale: Adam step size of the log scales.
       lr_means_first: the means' step size when mapping frame 0 (SplaTAM: the same as ``lr_means``). Fresh
         Gaussians render a depth biased towards the camera on slanted surfaces (nearer neighbours come first in
         the blend) by up to a fraction of a pixel footprint; at low resolution that is centimetres, and the first
         map needs a larger step to remove it before the second frame tracks against it.
-      lambda_color, lambda_depth: loss weights of the colour and depth terms.
+      lambda_color: loss weight of the colour term.
+      lambda_depth: loss weight of the depth term.
       ssim_weight: mixes 1 - SSIM into the colour term.
       prune_opacity: prune Gaussians with opacity below this.
       prune_scale_ratio: prune Gaussians with a scale above this fraction of the scene radius (given at the
@@ -120,11 +124,16 @@ class CBKNNConfig:
       mode: ``"off"`` (SplaTAM), ``"code_parity"`` (only the released code's 3D KNN smoothing of the overlap
         samples) or ``"paper"`` (per-pixel smoothing of keyframe renders).
       params: the per-pixel smoothing (:class:`gsjax.raster.cbknn.CBKNN`: alpha, k0, beta, ... ).
-      track_keyframes, map_keyframes, densify: in ``paper`` mode, smooth keyframe tracking renders, mapping
-        renders of keyframes, and the densification render of keyframes.
+      track_keyframes: in ``paper`` mode, smooth the tracking renders of keyframes.
+      map_keyframes: in ``paper`` mode, smooth the mapping renders of keyframes.
+      densify: in ``paper`` mode, smooth the densification render of keyframes.
       lambda_color_keyframe: tracking colour weight on smoothed keyframes (paper: 0.6).
       kf_overlap_smoothing: smooth the overlap samples (on in ``code_parity``).
-      smoothing_base_k, smoothing_min_k, smoothing_max_k, smoothing_dropout: that smoothing's parameters.
+      smoothing_base_k: the overlap smoothing's density is measured over this many nearest neighbours (self included).
+      smoothing_min_k: the fewest neighbours K a point is smoothed over (at the lowest density).
+      smoothing_max_k: the most neighbours K a point is smoothed over (at the highest density).
+      smoothing_dropout: the fraction of the K neighbours left out at random (a point becomes the mean of
+        ``max(1, floor(K (1 - dropout)))`` of them).
     """
 
     mode: str = param("off", "choice", static=True, choices=CBKNN_MODES)
@@ -146,10 +155,12 @@ class CBKNNConfig:
 
     @property
     def smooth_renders(self) -> bool:
+        """Whether keyframe renders are smoothed per pixel (``paper`` mode)."""
         return self.mode == "paper"
 
     @property
     def smooth_overlap(self) -> bool:
+        """Whether the overlap samples are smoothed (``code_parity``, or ``paper`` with ``kf_overlap_smoothing``)."""
         return self.mode == "code_parity" or (self.mode == "paper" and self.kf_overlap_smoothing)
 
 
@@ -165,10 +176,11 @@ class NoiseConfig:
       map_rgb: std of the noise added to those Gaussians' colours (colour units, images in [0, 1]).
       depth_cm: std (cm) of noise added to each valid pixel of the input depth, before everything (tracking,
         densification, mapping, the stored keyframe).
-      persistent_means_cm, persistent_rgb: std (cm; colour units) of noise added once to every active mean and
-        colour of the stored map itself, at the start of frame ``persistent_frame`` (before it is tracked), and left
-        there: tracking from then on sees the noisy map, and only mapping's own updates repair it (the paper's
-        "noisy Gaussian parameters").
+      persistent_means_cm: std (cm) of noise added once to every active mean of the stored map itself, at the
+        start of frame ``persistent_frame`` (before it is tracked), and left there: tracking from then on sees the
+        noisy map, and only mapping's own updates repair it (the paper's "noisy Gaussian parameters").
+      persistent_rgb: std (colour units) of noise added once to every active colour of the stored map, at the start
+        of frame ``persistent_frame``, as ``persistent_means_cm``.
       persistent_frame: the frame at whose start the persistent noise is added (>= 1: frame 0 builds the first
         map).
     """
@@ -190,7 +202,11 @@ class SlamConfig:
     """Everything the SLAM core needs (a pytree: traced hyperparameters, static shapes and modes).
 
     Attributes:
-      tracking, mapping, densify, cbknn: the stage configs; noise: injected noise (off by default).
+      tracking: camera tracking.
+      mapping: map optimisation.
+      densify: densification.
+      cbknn: where CB-KNN acts and its parameters.
+      noise: injected noise (off by default).
       raster: rasterizer settings. SLAM maps carry many young, semi-transparent Gaussians (opacity 0.5 at
         birth), so the SLAM default keeps 96 slots per pixel (the rasterizer's own default, 64, fits converged
         SplaTAM-density maps). Close-up views still exceed it at a few pixels (7-Scenes kitchen: up to ~150

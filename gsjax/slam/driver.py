@@ -226,8 +226,13 @@ def concat_outputs(chunks: list[StepOutputs], batched: bool = False) -> StepOutp
 
 
 class RunResult(NamedTuple):
-    """What :func:`run` returns: w2c [T, 4, 4] estimated poses (the outputs' ``w2c``), outputs
-    (:class:`StepOutputs`, numpy, [T, ...]) and the final :class:`SlamState`."""
+    """What :func:`run` returns.
+
+    Attributes:
+      w2c: [T, 4, 4] float32 estimated world-to-camera poses (m), the outputs' ``w2c``.
+      outputs: the per-frame :class:`StepOutputs`, numpy arrays with a leading axis of T.
+      state: the final :class:`SlamState` (the map, the keyframes, the counters).
+    """
 
     w2c: np.ndarray
     outputs: StepOutputs
@@ -260,11 +265,19 @@ def run(
     Args:
       frames: a stacked :class:`Frame` ([T, ...] leaves), a sequence of frames, or a :class:`gsjax.data.Sequence`.
         Their ground-truth poses are ignored.
-      config: the SLAM config; intrinsics: the camera at the frames' resolution.
+      config: the SLAM config.
+      intrinsics: the camera at the frames' resolution.
       seed: PRNG seed (mapping-window and pixel sampling).
-      poses: optional [T, 4, 4] world-to-camera poses to map with instead of tracking.
-      chunk: frames per jitted scan; capacity: initial map capacity (default 2 H W, grown as needed).
+      poses: optional [T, 4, 4] world-to-camera poses (m) to map with instead of tracking.
+      chunk: frames per jitted scan.
+      capacity: initial map capacity in Gaussians (default 2 H W, grown as needed).
       call: how each chunk's ``run_chunk`` is called (:func:`batch_chunk_loop`; None: directly).
+
+    Returns:
+      The T estimated poses, the per-frame outputs and the final state.
+
+    Raises:
+      ValueError: there is no frame, or ``poses`` is not [T, 4, 4].
     """
     read: Callable[[int], Frame]
     if hasattr(frames, "read_host"):

@@ -57,8 +57,19 @@ def _cbknn_values(k0: float) -> CBKNNConfig:
 
 
 def preset(name: str, width: int | None = None) -> SlamConfig:
-    """A named preset, ``replica``, ``tum``, ``scannet`` (SplaTAM / paper values) or ``cpu`` (2 CPU cores), for
-    images ``width`` px wide (default: the preset's own width, :data:`PRESET_WIDTH`)."""
+    """A named preset's config for images of a given width.
+
+    Args:
+      name: ``replica``, ``tum``, ``scannet`` (SplaTAM / paper values) or ``cpu`` (2 CPU cores).
+      width: the images' width (px); the fields that follow the width are scaled to it (:func:`at_width`).
+        None: the preset's own width, :data:`PRESET_WIDTH`.
+
+    Returns:
+      The preset's config.
+
+    Raises:
+      ValueError: ``name`` is not a preset.
+    """
     _check_name(name)
     config = _preset_values(name)
     return config if width is None else at_width(config, width, PRESET_WIDTH[name])
@@ -145,5 +156,16 @@ def with_coarse_to_fine(config: SlamConfig, iters: int = 20, levels: int = 2, si
 
 
 def with_cbknn_mode(config: SlamConfig, mode: str) -> SlamConfig:
-    """The config with CB-KNN switched to ``mode`` (``off``, ``code_parity``, ``paper``)."""
+    """Switch CB-KNN's mode.
+
+    Args:
+      config: the config to change.
+      mode: ``off``, ``code_parity`` or ``paper`` (:class:`CBKNNConfig`).
+
+    Returns:
+      A copy of ``config`` with ``cbknn.mode`` set.
+
+    Raises:
+      ValueError: ``mode`` is not a CB-KNN mode.
+    """
     return dataclasses.replace(config, cbknn=dataclasses.replace(config.cbknn, mode=mode))

@@ -40,10 +40,12 @@ class KeyframeBuffer:
     fit on a GPU): read them with :meth:`color_at` / :meth:`depth_at`.
 
     Attributes:
-      color: [F, H, W, 3] uint8 (:func:`encode_color`); depth: [F, H, W] uint16 mm (:func:`encode_depth`, 0 =
-        invalid).
-      w2c: [F, 4, 4] estimated world-to-camera pose at insertion (fixed after tracking, so mapping re-renders it).
-      frame: [F] int32 frame index; gamma: [F] float32 motion gamma used at that frame's tracking (CB-KNN).
+      color: [F, H, W, 3] uint8 colours (:func:`encode_color`).
+      depth: [F, H, W] uint16 depths in mm (:func:`encode_depth`, 0 = invalid).
+      w2c: [F, 4, 4] float32 estimated world-to-camera pose at insertion (fixed after tracking, so mapping
+        re-renders it).
+      frame: [F] int32 frame index (-1 in an empty slot).
+      gamma: [F] float32 motion gamma used at that frame's tracking (CB-KNN).
       count: [] int32 keyframes stored (slots >= count are empty).
     """
 
@@ -56,10 +58,21 @@ class KeyframeBuffer:
 
     @property
     def capacity(self) -> int:
+        """F, the number of keyframe slots (static)."""
         return self.frame.shape[-1]
 
     @staticmethod
     def empty(capacity: int, height: int, width: int) -> "KeyframeBuffer":
+        """A buffer with every slot empty.
+
+        Args:
+          capacity: F, the number of keyframe slots.
+          height: image height H (px).
+          width: image width W (px).
+
+        Returns:
+          The buffer: zero images, identity poses, frame -1, count 0.
+        """
         return KeyframeBuffer(
             color=jnp.zeros((capacity, height, width, 3), jnp.uint8),
             depth=jnp.zeros((capacity, height, width), jnp.uint16),
@@ -70,18 +83,44 @@ class KeyframeBuffer:
         )
 
     def color_at(self, slot: int | jax.Array) -> jax.Array:
-        """Colour [..., H, W, 3] float32 in [0, 1] of keyframe ``slot`` (an int or an int array)."""
+        """The colour of keyframes, decoded.
+
+        Args:
+          slot: a slot index, or an int array [...] of them.
+
+        Returns:
+          [..., H, W, 3] float32 colour in [0, 1].
+        """
         return decode_color(self.color[slot])
 
     def depth_at(self, slot: int | jax.Array) -> jax.Array:
-        """Depth [..., H, W] float32 m (0 = invalid) of keyframe ``slot``."""
+        """The depth of keyframes, decoded.
+
+        Args:
+          slot: a slot index, or an int array [...] of them.
+
+        Returns:
+          [..., H, W] float32 depth (m, to the mm; 0 = invalid).
+        """
         return decode_depth(self.depth[slot])
 
     def push(self, color: jax.Array, depth: jax.Array, w2c: jax.Array, frame: int | jax.Array,
              gamma: float | jax.Array, enabled: jax.Array) -> "KeyframeBuffer":
-        """Append a keyframe (colour [H, W, 3] in [0, 1], depth [H, W] m) when ``enabled`` (a traced bool); a full
-        buffer keeps its content (the shell sizes it for the whole sequence, so this does not happen in a run).
-        One slot is written (an in-place update of the scan's carry), never the whole buffer."""
+        """Append a keyframe when ``enabled``; a full buffer keeps its content (the shell sizes it for the whole
+        sequence, so this does not happen in a run). One slot is written (an in-place update of the scan's carry),
+        never the whole buffer.
+
+        Args:
+          color: [H, W, 3] float colour in [0, 1] (stored as uint8).
+          depth: [H, W] float depth (m; 0 or non-finite = invalid), stored as uint16 mm, clipped at 65.535 m.
+          w2c: [4, 4] estimated world-to-camera pose.
+          frame: the frame index.
+          gamma: the motion gamma used at that frame's tracking.
+          enabled: [] bool (traced), whether to append.
+
+        Returns:
+          The buffer with the keyframe in slot ``count`` and ``count`` raised by one, or unchanged.
+        """
         enabled = enabled & (self.count < self.capacity)
         slot = jnp.minimum(self.count, self.capacity - 1)
 
@@ -106,7 +145,8 @@ class SlamState:
 
     Attributes:
       gaussians: the map (fixed capacity, ``active`` mask).
-      w2c_prev1, w2c_prev2: estimated world-to-camera poses of frames t-1 and t-2 (identity before).
+      w2c_prev1: [4, 4] float32 estimated world-to-camera pose of frame t-1 (identity before frame 1).
+      w2c_prev2: [4, 4] float32 estimated world-to-camera pose of frame t-2 (identity before frame 2).
       keyframes: the keyframe buffer.
       key: PRNG key for mapping-window and pixel sampling.
       frame: [] int32 index t of the next frame to process.
@@ -118,8 +158,8 @@ class SlamState:
       nonfinite_gaussians: [] int32 Gaussians freed because a parameter was not finite.
       previous_tracking_loss: [] float32 the last tracked frame's tracking loss (0 before; the divergence test's
         reference).
-      retried_frames, diverged_frames: [] int32 frames whose tracking diverged and was retried / fell back to the
-        constant-velocity prediction.
+      retried_frames: [] int32 frames whose tracking diverged and was retried.
+      diverged_frames: [] int32 frames whose tracking diverged and fell back to the constant-velocity prediction.
     """
 
     gaussians: Gaussians
@@ -142,7 +182,19 @@ class SlamState:
 def initial_state(
     capacity: int, height: int, width: int, keyframe_capacity: int, num_frames: int, seed: int
 ) -> SlamState:
-    """An empty map and no history, ready for frame 0."""
+    """An empty map and no history, ready for frame 0.
+
+    Args:
+      capacity: N, the map's slots (Gaussians).
+      height: image height H (px).
+      width: image width W (px).
+      keyframe_capacity: F, keyframe slots (:func:`keyframe_capacity_for`).
+      num_frames: the sequence's length (decides the second-to-last keyframe).
+      seed: PRNG seed (mapping-window and pixel sampling).
+
+    Returns:
+      The state: poses the identity, counters 0, scene radius 1 m until frame 0 sets it.
+    """
     eye = jnp.eye(4, dtype=jnp.float32)
     return SlamState(
         gaussians=Gaussians.empty(capacity),
@@ -169,5 +221,13 @@ def grow_capacity(state: SlamState, capacity: int) -> SlamState:
 
 
 def keyframe_capacity_for(num_frames: int, every: int) -> int:
-    """Keyframes a sequence of ``num_frames`` can produce: frame 0, every ``every``-th, and the second-to-last."""
+    """How many keyframes a sequence can produce: frame 0, every ``every``-th, and the second-to-last.
+
+    Args:
+      num_frames: the sequence's length.
+      every: ``SlamConfig.keyframe_every``.
+
+    Returns:
+      ``num_frames // every + 2``, a capacity that always suffices.
+    """
     return num_frames // every + 2

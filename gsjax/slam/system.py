@@ -116,10 +116,19 @@ def _is_keyframe(state: SlamState, every: int) -> jax.Array:
 
 def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics,
          pose: jax.Array | None = None) -> tuple[SlamState, StepOutputs]:
-    """Process one frame (its colour and depth); returns the new state and the frame's outputs.
+    """Process one frame: track, densify, map, store a keyframe (pure, jit-able).
 
-    ``pose`` [4, 4] w2c: a known pose to map the frame at instead of tracking it (mapping-only studies, e.g. a map
-    built from ground truth); None tracks.
+    Args:
+      state: the state after the previous frames.
+      frame: the frame (its colour and depth are read; its ground-truth pose never is).
+      config: the SLAM config.
+      intrinsics: the camera at the frame's resolution.
+      pose: [4, 4] world-to-camera pose (m) to map the frame at instead of tracking it (mapping-only studies,
+        e.g. a map built from ground truth); None tracks.
+
+    Returns:
+      state: the state after the frame.
+      outputs: the frame's outputs.
     """
     frame = sanitize_frame(frame)
     usable = jnp.mean(frame.depth > 0) >= config.min_valid_depth
@@ -246,11 +255,23 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
 @jax.jit
 def run_chunk(state: SlamState, frames: Frame, valid: jax.Array, config: SlamConfig, intrinsics: Intrinsics,
               poses: jax.Array | None = None) -> tuple[SlamState, StepOutputs]:
-    """``lax.scan`` of :func:`step` over a chunk of frames stacked along a leading axis -> (state, outputs).
+    """``lax.scan`` of :func:`step` over a chunk of frames stacked along a leading axis (jitted).
 
-    ``valid`` [C] bool marks real frames; padding frames (a short last chunk padded to the chunk size, so it
-    reuses the compiled program) leave the state untouched and give zero outputs. ``poses`` [C, 4, 4]: known
-    w2c poses instead of tracking (see :func:`step`).
+    Padding frames (a short last chunk padded to the chunk size, so it reuses the compiled program) leave the
+    state untouched and give zero outputs.
+
+    Args:
+      state: the state after the previous chunks.
+      frames: a Frame with a leading axis of C on every leaf.
+      valid: [C] bool, the real frames (False: padding).
+      config: the SLAM config.
+      intrinsics: the camera at the frames' resolution.
+      poses: [C, 4, 4] known world-to-camera poses (m) to map at instead of tracking (see :func:`step`); None
+        tracks.
+
+    Returns:
+      state: the state after the chunk.
+      outputs: the frames' outputs, each leaf with a leading axis of C.
     """
 
     def body(state, inputs):

@@ -131,7 +131,8 @@ class TrackingConfig:
       lr_trans: Adam step size of the translation part rho.
       lr_rot: Adam step size of the rotation part phi. SplaTAM's quaternion learning rate q corresponds to about
         2 q here (a unit quaternion's vector part moves by half the angle).
-      lambda_color, lambda_depth: weights of the summed L1 colour and depth terms.
+      lambda_color: weight of the summed L1 colour term.
+      lambda_depth: weight of the summed L1 depth term.
       sil_threshold: pixels enter the loss where the rendered silhouette exceeds this (and depth is valid).
       lr_final_ratio: the Adam step sizes decay exponentially over the iterations to this fraction (1 = constant,
         SplaTAM). Adam's steps do not shrink near the optimum, so a constant step leaves the pose jittering within
