@@ -1,12 +1,14 @@
 """The documentation site in a real browser (headless Chromium): the home page, the API page of
 ``gsjax.raster.render`` and a tutorial load with no console error, no request outside the site and the tutorial's
-figures drawn; the method page's formulas are MathML that the browser lays out itself. Uses ``site/`` as ``make docs``
+figures drawn; the method page's formulas are MathML that the browser lays out itself; the docstrings' Sphinx
+roles are cross-references. Uses ``site/`` as ``make docs``
 builds it (``make test`` builds it first)."""
 
 from __future__ import annotations
 
 import functools
 import http.server
+import re
 import threading
 from pathlib import Path
 
@@ -77,3 +79,16 @@ def test_the_method_page_draws_its_formulas_as_mathml(served):
         assert "\\(" not in text and "\\[" not in text and "$$" not in text
     finally:
         page.context.close()
+
+
+def test_the_docstrings_roles_are_cross_references_not_text():
+    """``:func:`x``` in a docstring renders as a link where x is on the site, else as code (docs/hooks/roles.py);
+    no page shows a role as text."""
+    if not (SITE / "index.html").is_file():
+        pytest.skip("no built site: `make docs` builds it (and `make test` does first)")
+    pages = {path: path.read_text(encoding="utf-8") for path in SITE.rglob("*.html")}
+    left = {str(path.relative_to(SITE)): n for path, text in pages.items()
+            if (n := len(re.findall(r":(?:func|class|mod|meth|attr|data|obj|exc):<code>", text)))}
+    assert not left, left
+    slam = pages[SITE / "reference" / "api" / "slam" / "index.html"]
+    assert 'href="../raster/#gsjax.raster.cbknn.CBKNN"><code>gsjax.raster.cbknn.CBKNN</code></a>' in slam

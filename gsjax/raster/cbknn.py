@@ -58,9 +58,11 @@ class CBKNN:
       eps: stabiliser in the shift direction and in ``gamma / (rho + eps)``.
       tau_t: camera-centre motion (m) that gives gamma = 1.
       tau_r: rotation (deg) that gives gamma = 1.
-      k_min, k_max: bounds of K (k_max slots are allocated per pixel).
+      k_min: lower bound of K.
+      k_max: upper bound of K, and the most slots a pixel corrects (at most the rasterizer's ``max_contributors``).
       cell: side (px) of the cells over which rho and K are computed.
-      position, colour: apply the position / colour smoothing.
+      position: apply the position smoothing (shift the slots of G_p towards their centroid).
+      colour: apply the colour smoothing (the slots of G_p take their consensus colour).
       truncate: composite only the corrected slots (paper-literal) instead of the hybrid default.
       select: ``"first_k"`` or ``"top_weight"`` (which contributors form G_p).
       shift_mode: ``"unit"`` or ``"fraction"``.

@@ -100,9 +100,22 @@ def predicted_pose(state: SlamState) -> jax.Array:
 
 def tracking_problem(state: SlamState, color: jax.Array, depth: jax.Array, config: SlamConfig,
                      intrinsics: Intrinsics) -> TrackingProblem:
-    """The tracking problem of the frame after ``state`` (its colour [H, W, 3] and depth [H, W]), as :func:`step`
-    poses it: the map, the constant-velocity prediction, CB-KNN's motion from the last two poses, and the smooth flag
-    (``paper`` mode and a keyframe; the first frame with depth always is one)."""
+    """The tracking problem of the frame after ``state``, as :func:`step` poses it: the map, the constant-velocity
+    prediction, CB-KNN's motion from the last two poses, and the smooth flag (``paper`` mode and a keyframe; the
+    first frame with depth always is one).
+
+    Args:
+      state: the state after the previous frames (its map, last two poses, frame index and keyframes are read).
+      color: [H, W, 3] the frame's colour in [0, 1].
+      depth: [H, W] the frame's depth (m; 0 marks an invalid pixel).
+      config: the SLAM config (its ``cbknn`` and ``keyframe_every`` are read).
+      intrinsics: the camera at the frame's resolution.
+
+    Returns:
+      The frame's ``TrackingProblem`` (:mod:`gsjax.slam.tracking`) with ``state``'s Gaussians, ``color`` and
+      ``depth``, the start pose ``w2c_init`` [4, 4] (the constant-velocity prediction; the last pose before frame
+      2), ``intrinsics``, ``smooth`` [] bool and CB-KNN's motion ``gamma`` [] in [0, 1] (0 before frame 2).
+    """
     return TrackingProblem(state.gaussians, color, depth, predicted_pose(state), intrinsics,
                            jnp.asarray(config.cbknn.smooth_renders) & _is_keyframe(state, config.keyframe_every),
                            _motion(state, config.cbknn.params))
