@@ -189,7 +189,7 @@ def backproject(depth: jax.Array, intrinsics: Intrinsics) -> jax.Array:
 
     Returns:
       [H, W, 3] points (X, Y, Z = depth) in the camera frame (m), dtype of ``depth``; pixel (i, j) at its centre
-      (u, v) = (j, i).
+        (u, v) = (j, i).
     """
     height, width = depth.shape
     v, u = jnp.meshgrid(jnp.arange(height, dtype=depth.dtype), jnp.arange(width, dtype=depth.dtype), indexing="ij")

@@ -229,8 +229,8 @@ def gaussians_from_rgbd(
 
     Returns:
       Gaussians (float32) with H*W slots in row-major pixel order; slots of masked-out or invalid pixels are inactive.
-      Centres are back-projected pixel centres (so each renders centred on its pixel); the isotropic scale is one
-      pixel's footprint at that depth, ``z / ((fx + fy) / 2)``.
+        Centres are back-projected pixel centres (so each renders centred on its pixel); the isotropic scale is one
+        pixel's footprint at that depth, ``z / ((fx + fy) / 2)``.
     """
     from gsjax.camera import backproject
 

@@ -91,4 +91,4 @@ def test_the_docstrings_roles_are_cross_references_not_text():
             if (n := len(re.findall(r":(?:func|class|mod|meth|attr|data|obj|exc):<code>", text)))}
     assert not left, left
     slam = pages[SITE / "reference" / "api" / "slam" / "index.html"]
-    assert 'href="../raster/#gsjax.raster.cbknn.CBKNN"><code>gsjax.raster.cbknn.CBKNN</code></a>' in slam
+    assert 'href="../raster_modules/#gsjax.raster.cbknn.CBKNN"><code>gsjax.raster.cbknn.CBKNN</code></a>' in slam

@@ -18,7 +18,10 @@ The rule, applied uniformly to each of them:
   parameters in its ``Args:`` (``__init__`` itself is not rendered);
 * a dataclass or NamedTuple names each field in its ``Attributes:``, one field per entry (griffe renders
   ``a, b: text`` as the name ``a,`` of type ``b``);
-* the docstring parses without a griffe warning (those fail ``mkdocs build --strict``).
+* a ``Returns:`` section is one item, or named items (a tuple): a continuation line at the item's indent would render
+  as a row of its own; no item starts with a role (``:class:`X```: its colon is read as a separator);
+* the docstring parses without a griffe warning (those fail ``mkdocs build --strict``; a ``Raises:`` continuation line
+  at the item's indent is one).
 """
 
 from __future__ import annotations
@@ -129,6 +132,13 @@ def problems(obj: griffe.Object) -> list[str]:
             for section in outputs:
                 found += [f"a Returns: item read as named {item.name!r} (prose starting 'Word :' or 'Word:')"
                           for item in section.value if item.name and not item.name[0].islower()]
+                unnamed = [item for item in section.value if not item.name]
+                if len(section.value) > 1 and unnamed:
+                    found.append(f"Returns: read as {len(section.value)} items, {len(unnamed)} unnamed (a continuation "
+                                 "line at the item's indent starts a new item: indent it deeper)")
+                found += [f"a Returns: item starts with a role that loses its colon ({item.description[:30]!r})"
+                          for item in section.value if re.match(r"(class|func|mod|meth|attr|data|obj|exc):`",
+                                                                item.description)]
     elif obj.is_class:
         init = obj.members.get("__init__")
         generated = "dataclass" in obj.labels or is_named_tuple(obj)
@@ -187,6 +197,15 @@ def misread_returns() -> int:
     """
 
 
+def split_returns() -> int:
+    """Something.
+
+    Returns:
+      :class:`int` that goes on
+      over a second line at the same indent.
+    """
+
+
 @dataclasses.dataclass
 class Fields:
     """Fields.
@@ -230,6 +249,8 @@ def test_the_check_finds_each_kind_of_gap(tmp_path):
     assert "parameter 'y' not in Args:" in found["no_args"] and "Args: names 'z', not a parameter" in found["no_args"]
     assert found["no_returns"] == ["returns int but has no Returns: section"]
     assert any("read as named 'A'" in p for p in found["misread_returns"])
+    assert any("read as 2 items, 2 unnamed" in p for p in found["split_returns"])
+    assert any("starts with a role" in p for p in found["split_returns"])
     assert "Attributes: entry 'a,' names several fields (one per entry)" in found["Fields"]
     assert "field 'c' not in Attributes:" in found["Fields"]
     assert found["Tuple"] == ["field 'x' not in Attributes:"]

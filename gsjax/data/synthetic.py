@@ -79,7 +79,7 @@ class SyntheticConfig:
 
         Returns:
           A copy with 1.5 mm depth noise at 1 m (6 mm at 2 m), holes at depth edges, colour noise of 1/100 and
-          3-sample motion blur over the shutter (half the frame interval by default).
+            3-sample motion blur over the shutter (half the frame interval by default).
         """
         return dataclasses.replace(self, depth_noise=0.0015, depth_holes=True, color_noise=0.01, motion_blur=3)
 
@@ -88,7 +88,7 @@ class SyntheticConfig:
 
         Returns:
           float32 intrinsics of ``width`` x ``height``, principal point at the image centre ((W - 1) / 2,
-          (H - 1) / 2).
+            (H - 1) / 2).
         """
         fx = self.fx if self.fx is not None else _FOCAL_PER_WIDTH * self.width
         fy = self.fy if self.fy is not None else _FOCAL_PER_WIDTH * self.width

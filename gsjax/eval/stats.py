@@ -55,7 +55,7 @@ def paired_difference(a: npt.ArrayLike, b: npt.ArrayLike, *, confidence: float =
 
     Returns:
       The difference; pairs with a non-finite value are dropped, and fewer than two pairs give the mean with NaN
-      intervals.
+        intervals.
 
     Raises:
       ValueError: ``a`` and ``b`` differ in size, or ``confidence`` is outside (0, 1).

@@ -318,7 +318,7 @@ def ate_splatam_mean_w2c(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike,
 
     Returns:
       The mean distance (m) as ``value_m``, per-frame errors, the rigid alignment (no scale: SplaTAM has none) and
-      the frames used.
+        the frames used.
 
     Raises:
       ValueError: as :func:`ate_rmse_c2w`.
@@ -405,11 +405,11 @@ def evaluate_trajectory(
       with_scale: similarity alignment for ``ate_*_c2w`` and RPE (the SplaTAM variant stays rigid).
 
     Returns:
-      :class:`gsjax.eval.run_metrics.TrajectoryMetrics`: float metrics (units in the name: ``_m``, ``_cm``,
-      ``_deg``; None where undefined), counts
-      (``num_*``), the alignment, ``per_frame`` (the per-frame errors behind the statistics: ``est_index`` and
-      ``ate_c2w_m`` of every evaluated estimate row; ``rpe_est_index``, the second row of each RPE pair, with
-      ``rpe_trans_m`` and ``rpe_rot_deg``) and ``definitions``.
+      the metrics, a :class:`gsjax.eval.run_metrics.TrajectoryMetrics`: float metrics (units in the name: ``_m``,
+        ``_cm``, ``_deg``; None where undefined), counts (``num_*``), the alignment, ``per_frame`` (the per-frame
+        errors behind the statistics: ``est_index`` and ``ate_c2w_m`` of every evaluated estimate row;
+        ``rpe_est_index``, the second row of each RPE pair, with ``rpe_trans_m`` and ``rpe_rot_deg``) and
+        ``definitions``.
 
     Raises:
       ValueError: a shape is wrong, no estimated pose has a GT timestamp within ``max_dt``, or as

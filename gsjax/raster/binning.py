@@ -22,8 +22,12 @@ class TileGrid:
 
     Attributes:
       tile_size: tile side (px).
-      tiles_x, tiles_y: number of tiles across and down (the last ones may extend past the image).
-      width, height: image size (px).
+      tiles_x: number of tiles across, ``ceil(width / tile_size)`` from :meth:`for_image` (the last column of tiles
+        may extend past the image).
+      tiles_y: number of tiles down, ``ceil(height / tile_size)`` from :meth:`for_image` (the last row of tiles may
+        extend past the image).
+      width: image width (px).
+      height: image height (px).
     """
 
     tile_size: int
@@ -34,18 +38,34 @@ class TileGrid:
 
     @staticmethod
     def for_image(height: int, width: int, tile_size: int) -> "TileGrid":
+        """The fewest tiles of side ``tile_size`` that cover a ``height x width`` image.
+
+        Args:
+          height: image height (px).
+          width: image width (px).
+          tile_size: tile side (px).
+
+        Returns:
+          A grid of ``ceil(width / tile_size) x ceil(height / tile_size)`` tiles (across x down).
+        """
         return TileGrid(tile_size, math.ceil(width / tile_size), math.ceil(height / tile_size), width, height)
 
     @property
     def num_tiles(self) -> int:
+        """Number of tiles, ``tiles_x * tiles_y`` (static)."""
         return self.tiles_x * self.tiles_y
 
     @property
     def pixels_per_tile(self) -> int:
+        """Pixels per tile, ``tile_size^2`` (static)."""
         return self.tile_size * self.tile_size
 
     def pixel_coords(self) -> jax.Array:
-        """[num_tiles, tile_size^2, 2] float32 (u, v) of every pixel, tile-major then row-major within a tile."""
+        """(u, v) of every pixel of the grid, tile-major then row-major within a tile (pixel centres at integers).
+
+        Returns:
+          [num_tiles, tile_size^2, 2] float32 (u, v) (px), padding pixels past the image included.
+        """
         t = self.tile_size
         local_v, local_u = jnp.divmod(jnp.arange(t * t), t)
         tile_y, tile_x = jnp.divmod(jnp.arange(self.num_tiles), self.tiles_x)
@@ -54,7 +74,14 @@ class TileGrid:
         return jnp.stack([u, v], axis=-1).astype(jnp.float32)
 
     def untile(self, values: jax.Array) -> jax.Array:
-        """[num_tiles * tile_size^2, ...] in tile-major order -> [height, width, ...] (padding cropped)."""
+        """[num_tiles * tile_size^2, ...] in tile-major order -> [height, width, ...] (padding cropped).
+
+        Args:
+          values: [num_tiles * tile_size^2, ...] per-pixel values in the order of :meth:`pixel_coords`.
+
+        Returns:
+          [height, width, ...] image of ``values`` (same dtype), the padding pixels past the image dropped.
+        """
         t = self.tile_size
         rest = values.shape[1:]
         grid = values.reshape((self.tiles_y, self.tiles_x, t, t) + rest)
@@ -62,7 +89,11 @@ class TileGrid:
         return grid[: self.height, : self.width]
 
     def in_image(self) -> jax.Array:
-        """[num_tiles * tile_size^2] bool: which tile-major pixels lie inside the image (not padding)."""
+        """Which tile-major pixels lie inside the image (not padding).
+
+        Returns:
+          [num_tiles * tile_size^2] bool, in the order of :meth:`pixel_coords`.
+        """
         uv = self.pixel_coords().reshape(-1, 2)
         return (uv[:, 0] < self.width) & (uv[:, 1] < self.height)
 
@@ -83,7 +114,12 @@ class TileLists(NamedTuple):
     intersections_dropped: jax.Array
 
     def incomplete(self) -> jax.Array:
-        """[num_tiles] bool: the tile's list may be missing candidates behind its last entry."""
+        """Which tiles' lists may be missing candidates behind their last entry.
+
+        Returns:
+          [num_tiles] bool: True where ``count`` exceeds the list length (tile_capacity) or any intersection was
+            dropped (``intersections_dropped > 0``, then every tile).
+        """
         capacity = self.ids.shape[-1]
         return (self.count > capacity) | (self.intersections_dropped > 0)
 
@@ -92,6 +128,15 @@ def tile_ranges(uv: jax.Array, extent: jax.Array, grid: TileGrid) -> tuple[jax.A
     """Inclusive tile ranges covered by each Gaussian's box: (lo [N, 2], hi [N, 2]) tile (x, y), and [N] non-empty.
 
     A pixel j is covered when ``u - extent <= j <= u + extent``; boxes are clipped to the image.
+
+    Args:
+      uv: [N, 2] box centres (u, v) (px).
+      extent: [N, 2] box half-width and half-height (px).
+      grid: the tile grid.
+
+    Returns:
+      Three arrays, lo [N, 2] int32 and hi [N, 2] int32, the first and last tile (x, y) covered, and nonempty [N]
+        bool, whether the box covers any image pixel (where False, lo and hi are meaningless).
     """
     size = jnp.array([grid.width - 1, grid.height - 1], jnp.float32)
     first = jnp.clip(jnp.ceil(uv - extent), 0.0, size)
@@ -127,10 +172,17 @@ def bin_gaussians(
     """Depth-sorted, fixed-capacity candidate lists per tile.
 
     Args:
-      uv: [N, 2] centres (px); extent: [N, 2] box half sizes (px); depth: [N] camera z (m, > 0 where visible);
-        visible: [N] bool.
-      grid: the tile grid; tile_capacity: list length M per tile; intersection_capacity: static bound on the
-        total number of (tile, Gaussian) pairs.
+      uv: [N, 2] centres (px).
+      extent: [N, 2] box half sizes (px).
+      depth: [N] camera z (m, > 0 where visible).
+      visible: [N] bool, which Gaussians to bin.
+      grid: the tile grid.
+      tile_capacity: list length M per tile (static).
+      intersection_capacity: static bound on the total number of (tile, Gaussian) pairs.
+
+    Returns:
+      Candidate lists of the ``grid.num_tiles`` tiles as a :class:`TileLists`, ids [num_tiles, tile_capacity] (no
+        gradient).
     """
     uv, extent, depth = (jax.lax.stop_gradient(x) for x in (uv, extent, depth))
     n = uv.shape[0]

@@ -111,6 +111,15 @@ def motion_from_poses(w2c_prev2: jax.Array, w2c_prev1: jax.Array, tau_t: float |
 
     ``gamma = clip(max(|c_1 - c_2| / tau_t, angle(R_1 R_2^T) / tau_r), 0, 1)`` with camera centres c (m) and the
     relative rotation angle in degrees; ``tau_t`` in m, ``tau_r`` in degrees. Callers use gamma = 0 before frame 2.
+
+    Args:
+      w2c_prev2: [4, 4] world-to-camera pose (m) of the frame two back (c_2, R_2).
+      w2c_prev1: [4, 4] world-to-camera pose (m) of the previous frame (c_1, R_1).
+      tau_t: camera-centre motion (m) that gives gamma = 1 (``CBKNN.tau_t``).
+      tau_r: rotation (deg) that gives gamma = 1 (``CBKNN.tau_r``).
+
+    Returns:
+      gamma, [] float32 (the poses' dtype), in [0, 1].
     """
     translation = jnp.linalg.norm(camera_center(w2c_prev1) - camera_center(w2c_prev2))
     angle_deg = rotation_angle(w2c_prev1[:3, :3] @ w2c_prev2[:3, :3].T) * (180.0 / math.pi)
@@ -121,6 +130,17 @@ def density_map(projected: Projected, height: int, width: int, cell: int) -> jax
     """rho [cells_y, cells_x]: visible Gaussian centres per cell over the mean of non-empty cells (no gradient).
 
     Pixel j covers u in [j - 0.5, j + 0.5), so cell c holds centres with ``floor((u + 0.5) / cell) = c``.
+
+    Args:
+      projected: the :class:`~gsjax.raster.project.Projected` Gaussians (``uv`` and ``visible`` are read); a
+        visible centre counts when it lies in the image, u in [-0.5, width - 0.5) and v in [-0.5, height - 0.5).
+      height: image height (px).
+      width: image width (px).
+      cell: cell side (px).
+
+    Returns:
+      rho [cells_y, cells_x] float32, ``cells_y = ceil(height / cell)`` and ``cells_x = ceil(width / cell)``: 0 in
+        empty cells, and 0 everywhere when no visible centre is in the image.
     """
     cells_y, cells_x = math.ceil(height / cell), math.ceil(width / cell)
     uv = jax.lax.stop_gradient(projected.uv)
@@ -139,6 +159,14 @@ def kernel_size_map(rho: jax.Array, cbknn: CBKNN, motion: float | jax.Array) -> 
     """K per cell [cells_y, cells_x] int32: ``clip(round(k0 max(0.5, 1 + beta gamma / (rho + eps))), k_min, k_max)``.
 
     ``round`` is round-half-to-even. The ratio is capped before rounding so empty cells (rho = 0) stay finite.
+
+    Args:
+      rho: normalised density (:func:`density_map`), [cells_y, cells_x] (any shape: elementwise).
+      cbknn: the configuration (``k0``, ``beta``, ``eps``, ``k_min`` and ``k_max`` are read).
+      motion: inter-frame motion gamma in [0, 1] (:func:`motion_from_poses`), a scalar.
+
+    Returns:
+      K of ``rho``'s shape, int32 in [k_min, k_max].
     """
     factor = jnp.maximum(0.5, 1.0 + cbknn.beta * motion / (rho + cbknn.eps))
     k = jnp.round(jnp.minimum(cbknn.k0 * factor, float(cbknn.k_max) + 1.0))
@@ -146,7 +174,18 @@ def kernel_size_map(rho: jax.Array, cbknn: CBKNN, motion: float | jax.Array) -> 
 
 
 def pixel_cells(pixels: jax.Array, height: int, width: int, cell: int) -> jax.Array:
-    """Cell index (row-major over the cell grid) of each pixel (u, v) [P, 2]."""
+    """Cell index (row-major over the cell grid) of each pixel (u, v) [P, 2].
+
+    Args:
+      pixels: [P, 2] (u, v) of each pixel (px), non-negative integers (truncated to int32).
+      height: image height (px).
+      width: image width (px).
+      cell: cell side (px).
+
+    Returns:
+      [P] int32 ``row * cells_x + col``, an index into the flattened [cells_y, cells_x] grid of :func:`density_map`;
+        pixels past the image (tile padding) fall in the last row or column of cells.
+    """
     cells_y, cells_x = math.ceil(height / cell), math.ceil(width / cell)
     col = jnp.clip(pixels[:, 0].astype(jnp.int32) // cell, 0, cells_x - 1)
     row = jnp.clip(pixels[:, 1].astype(jnp.int32) // cell, 0, cells_y - 1)
@@ -154,8 +193,17 @@ def pixel_cells(pixels: jax.Array, height: int, width: int, cell: int) -> jax.Ar
 
 
 class Corrected(NamedTuple):
-    """Per-slot compositing inputs after the correction, all [K, P]: alpha, colour r, g, b (depth is unchanged),
-    ``corrected`` (bool, the slots of G_p) and ``shift_px`` (|u' - u| in px, 0 outside G_p)."""
+    """Per-slot compositing inputs after the correction, all [K, P] (depth is unchanged).
+
+    Attributes:
+      alpha: [K, P] f'_k for the slots of G_p; the other slots keep their canonical alpha (hybrid), or 0 with
+        ``truncate=True``.
+      r: [K, P] red channel: G_p's consensus with colour smoothing (``colour``), else unchanged.
+      g: [K, P] green channel, as ``r``.
+      b: [K, P] blue channel, as ``r``.
+      corrected: [K, P] bool, the slots of G_p.
+      shift_px: [K, P] |u' - u| (px), 0 outside G_p or without position smoothing (no gradient).
+    """
 
     alpha: jax.Array
     r: jax.Array
@@ -172,7 +220,19 @@ def _safe_divide(numerator, denominator):
 
 
 def correction_mask(slots: Slots, weights: jax.Array, k_pixel: jax.Array, cbknn: CBKNN) -> jax.Array:
-    """[K, P] bool: which slots form G_p (no gradient). ``weights`` [K, P] are the canonical blend weights."""
+    """[K, P] bool: which slots form G_p (no gradient). ``weights`` [K, P] are the canonical blend weights.
+
+    Args:
+      slots: the contributor :class:`~gsjax.raster.composite.Slots` [K, P] in depth order (only ``valid`` is
+        read).
+      weights: [K, P] canonical blend weights (read only with ``select="top_weight"``).
+      k_pixel: [P] int32 kernel size K_p of each pixel.
+      cbknn: the configuration (``select`` and ``k_max`` are read).
+
+    Returns:
+      [K, P] bool, True for the valid slots of G_p: among the first K_p slots (``"first_k"``), or the K_p with the
+        largest weights, at most ``k_max``, ties to the nearer slot (``"top_weight"``).
+    """
     num_slots = slots.valid.shape[0]
     if cbknn.select == "first_k":
         return slots.valid & (jnp.arange(num_slots)[:, None] < k_pixel[None, :])
@@ -191,9 +251,15 @@ def correct_slots(
     """Apply D.5 to the slots of every pixel.
 
     Args:
-      slots: projected contributor slots [K, P] (depth order); pixels: [P, 2] (u, v);
-      alpha: canonical per-slot alpha f_k [K, P]; weights: canonical blend weights [K, P];
-      k_pixel: [P] int32 kernel size per pixel; cbknn: the configuration.
+      slots: projected contributor :class:`~gsjax.raster.composite.Slots` [K, P] (depth order).
+      pixels: [P, 2] (u, v) of each pixel (px).
+      alpha: canonical per-slot alpha f_k [K, P] (:func:`~gsjax.raster.composite.slot_alpha`).
+      weights: canonical blend weights [K, P] (:func:`~gsjax.raster.composite.blend_weights`).
+      k_pixel: [P] int32 kernel size K_p per pixel.
+      cbknn: the configuration.
+
+    Returns:
+      The corrected slots as a :class:`Corrected`, every field [K, P], to composite with the slots' depths.
     """
     mask = correction_mask(slots, weights, k_pixel, cbknn)
     num_slots = alpha.shape[0]

@@ -28,9 +28,20 @@ from gsjax.raster.project import DILATION, Splat, gaussian_alpha, sanitized, spl
 class Slots(NamedTuple):
     """Per-pixel contributor slots, projected; every field [K, P] (slot-major), P pixels, K slots.
 
+    :func:`splat_table` makes a per-Gaussian table of the same fields, each [N].
+
     Attributes:
-      u, v: centres (px); conic_a, conic_b, conic_c: inverse 2D covariance; opacity; r, g, b: colour;
-      depth: camera z (m); valid: bool (False for empty slots, whose other entries are harmless constants).
+      u: centre's column (px).
+      v: centre's row (px).
+      conic_a: entry a of the inverse 2D covariance [[a, b], [b, c]] (1/px^2).
+      conic_b: entry b of the inverse 2D covariance (1/px^2).
+      conic_c: entry c of the inverse 2D covariance (1/px^2).
+      opacity: sigmoid(logit_opacity), in (0, 1).
+      r: colour's red channel.
+      g: colour's green channel.
+      b: colour's blue channel.
+      depth: camera z (m).
+      valid: bool, False for empty slots (whose other entries are harmless constants).
     """
 
     u: jax.Array
@@ -47,7 +58,14 @@ class Slots(NamedTuple):
 
 
 class Composite(NamedTuple):
-    """Per-pixel compositing result for P pixels: color [P, 3], depth [P], silhouette [P], depth_sq [P]."""
+    """Per-pixel compositing result for P pixels, with blending weights w over each pixel's slots.
+
+    Attributes:
+      color: [P, 3] sum w c (r, g, b).
+      depth: [P] sum w z (m), not normalised by the silhouette.
+      silhouette: [P] sum w, in [0, 1].
+      depth_sq: [P] sum w z^2 (m^2).
+    """
 
     color: jax.Array
     depth: jax.Array
@@ -57,7 +75,20 @@ class Composite(NamedTuple):
 
 def splat_table(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near: float | jax.Array,
                 dilation: float | jax.Array = DILATION) -> Slots:
-    """Project every Gaussian (with gradients) -> :class:`Slots` with fields [N], one per Gaussian slot."""
+    """Project every Gaussian (with gradients) -> :class:`Slots` with fields [N], one per Gaussian slot.
+
+    Args:
+      gaussians: :class:`~gsjax.gaussians.Gaussians` with N slots (free slots are replaced by
+        :func:`~gsjax.raster.project.sanitized`'s constants).
+      w2c: [4, 4] world-to-camera rigid transform (m).
+      intrinsics: :class:`~gsjax.camera.Intrinsics` of the image (px).
+      near: near plane (m).
+      dilation: added to the diagonal of the 2D covariance (px^2).
+
+    Returns:
+      The per-Gaussian table, a :class:`Slots` with every field [N] and ``valid`` all True, differentiable w.r.t.
+        the Gaussians and ``w2c``; :func:`gather` takes its rows into slots.
+    """
     g = sanitized(gaussians)
     x, y, z = to_camera(g.means[:, 0], g.means[:, 1], g.means[:, 2], w2c)
     s = splat(x, y, z, g.log_scales, g.logit_opacities, intrinsics, near, dilation)
@@ -76,6 +107,18 @@ def splat_slots(gaussians: Gaussians, ids: jax.Array, w2c: jax.Array, intrinsics
 
     The same values as ``gather(splat_table(...), ids)``, but the backward pass is elementwise per slot plus a sum
     into the 12 pose entries, with no scatter into the N Gaussians (what tracking needs).
+
+    Args:
+      gaussians: :class:`~gsjax.gaussians.Gaussians` with N slots (under ``stop_gradient``).
+      ids: [K, P] int32 Gaussian index of each slot, -1 for an empty slot.
+      w2c: [4, 4] world-to-camera rigid transform (m); gradients flow to it, not to the Gaussians.
+      intrinsics: :class:`~gsjax.camera.Intrinsics` of the image (px).
+      near: near plane (m).
+      dilation: added to the diagonal of the 2D covariance (px^2).
+
+    Returns:
+      The slots, a :class:`Slots` with every field [K, P]; empty slots hold Gaussian 0's values with ``valid``
+        False.
     """
     g = sanitized(jax.lax.stop_gradient(gaussians))
     raw = jnp.stack([g.means[:, 0], g.means[:, 1], g.means[:, 2], g.log_scales, g.logit_opacities, g.rgb[:, 0],
@@ -90,6 +133,14 @@ def gather(table: Slots, ids: jax.Array) -> Slots:
     One gather per column: on XLA:CPU a stacked [F, N] table gathered at once made the render's fwd+bwd 1.5-2x
     slower (bench_raster, 80x60 and 160x120; the frame's step unchanged), as a packed feature axis does elsewhere.
     Empty slots hold zeros (their ``valid`` is False, so their alpha is 0 whatever they hold).
+
+    Args:
+      table: the per-Gaussian :class:`Slots` of :func:`splat_table`, every field [N].
+      ids: [K, P] int32 Gaussian index of each slot, -1 for an empty slot.
+
+    Returns:
+      The slots, a :class:`Slots` with every field [K, P] (``valid`` is ``ids >= 0``); the gradient flows back
+        into ``table``.
     """
     # Empty slots read past the end (filled with 0), so the backward pass drops them: clamped to Gaussian 0, half of
     # all slots would add into that one entry, and on XLA:CPU such a hot index makes each scatter-add ~5x slower.
@@ -102,6 +153,16 @@ def slot_alpha(slots: Slots, pixels: jax.Array, u: jax.Array | None = None, v: j
     """alpha [K, P] of every slot at its pixel, ``pixels`` [P, 2] (0 for empty slots).
 
     ``u``, ``v`` [K, P] override the slot centres (CB-KNN evaluates shifted centres).
+
+    Args:
+      slots: :class:`Slots` [K, P].
+      pixels: [P, 2] (u, v) of each pixel (px).
+      u: None for the slots' own centres, or [K, P] centre columns (px) to use instead.
+      v: None for the slots' own centres, or [K, P] centre rows (px) to use instead.
+
+    Returns:
+      alpha [K, P] in [0, 0.99] (:func:`~gsjax.raster.project.gaussian_alpha`, no 1/255 threshold), 0 where
+        ``valid`` is False.
     """
     u = slots.u if u is None else u
     v = slots.v if v is None else v
@@ -116,6 +177,13 @@ def blend_weights(alpha: jax.Array) -> tuple[jax.Array, jax.Array]:
 
     A ``lax.scan`` over the K slots (vectorised over pixels): on XLA:CPU it beats cumulative-product forms, and it
     is exact (no log/exp round trip).
+
+    Args:
+      alpha: [K, P] per-slot alpha, slots in depth order (front first).
+
+    Returns:
+      A pair of arrays: the weights ``w_k = alpha_k prod_{j<k} (1 - alpha_j)`` [K, P] and the final transmittance
+        ``prod_k (1 - alpha_k)`` [P], both of ``alpha``'s dtype.
     """
 
     def step(transmittance, alpha_k):
@@ -126,7 +194,19 @@ def blend_weights(alpha: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 
 def composite(weights: jax.Array, r: jax.Array, g: jax.Array, b: jax.Array, depth: jax.Array) -> Composite:
-    """Blend per-slot colours and depths [K, P] with weights [K, P]."""
+    """Blend per-slot colours and depths [K, P] with weights [K, P].
+
+    Args:
+      weights: [K, P] blending weights w (:func:`blend_weights`).
+      r: [K, P] red channel of each slot.
+      g: [K, P] green channel of each slot.
+      b: [K, P] blue channel of each slot.
+      depth: [K, P] camera z of each slot (m).
+
+    Returns:
+      Per-pixel sums over the slots as a :class:`Composite`: colour [P, 3], depth [P] (m), silhouette [P] and
+        depth_sq [P] (m^2).
+    """
     wz = weights * depth
     return Composite(
         color=jnp.stack([jnp.sum(weights * r, 0), jnp.sum(weights * g, 0), jnp.sum(weights * b, 0)], axis=-1),
@@ -139,7 +219,20 @@ def composite(weights: jax.Array, r: jax.Array, g: jax.Array, b: jax.Array, dept
 def blend(alpha: jax.Array, r: jax.Array, g: jax.Array, b: jax.Array, depth: jax.Array,
           use_pallas: bool) -> tuple[Composite, jax.Array]:
     """Composite slots [K, P] front to back -> (Composite, final transmittance [P]): :func:`blend_weights` and
-    :func:`composite` on XLA, or the fused Pallas kernel (:func:`gsjax.raster.pallas.composite_slots`)."""
+    :func:`composite` on XLA, or the fused Pallas kernel (:func:`gsjax.raster.pallas.composite_slots`).
+
+    Args:
+      alpha: [K, P] per-slot alpha, slots in depth order (front first).
+      r: [K, P] red channel of each slot.
+      g: [K, P] green channel of each slot.
+      b: [K, P] blue channel of each slot.
+      depth: [K, P] camera z of each slot (m).
+      use_pallas: a static bool: the Pallas kernel (float32 inputs; reverse mode only, no ``jax.jvp``) if True,
+        else XLA.
+
+    Returns:
+      A pair: the :class:`Composite` of the P pixels and the final transmittance ``prod_k (1 - alpha_k)`` [P].
+    """
     if use_pallas:
         cr, cg, cb, d, sil, dsq, final = pallas.composite_slots(alpha, r, g, b, depth)
         return Composite(jnp.stack([cr, cg, cb], axis=-1), d, sil, dsq), final

@@ -38,7 +38,11 @@ _MAX_BLOCK = 256  # pixels per composite program
 
 
 def on_gpu() -> bool:
-    """Whether the default JAX backend is a GPU (where the kernels are compiled rather than interpreted)."""
+    """Whether the default JAX backend is a GPU (where the kernels are compiled rather than interpreted).
+
+    Returns:
+      True when ``jax.default_backend()`` is ``"gpu"``.
+    """
     return jax.default_backend() == "gpu"
 
 
@@ -112,13 +116,18 @@ def walk_select(features: tuple[jax.Array, ...], count: jax.Array, pixels: jax.A
     Args:
       features: tuple of six [B, M] float32 arrays (u, v, conic a, b, c, opacity) of every tile's depth-sorted
         candidates (opacity 0 for empty entries), M / 32 a power of two.
-      count: [B] int32 list lengths; pixels: [B, T^2, 2] float32 pixel coordinates (u, v).
-      k: contributor slots per pixel.
+      count: [B] int32 list lengths (may exceed M: the walk stops at M).
+      pixels: [B, T^2, 2] float32 pixel coordinates (u, v) of each tile's pixels.
+      k: contributor slots per pixel (static).
 
     Returns:
-      (local [B, k, T^2] int32: list positions of each pixel's first k kept entries in depth order, -1 past the
-      last; num_kept [B, T^2] int32: kept entries in the whole walk; transmittance [B, T^2] at the end of each
-      tile's walk, which matches the XLA walk's wherever the pixel has not terminated).
+      Three arrays: ``local`` [B, k, T^2] int32, the list positions of each pixel's first k kept entries in depth
+        order, -1 past the last; ``num_kept`` [B, T^2] int32, the kept entries of the whole walk; and the float32
+        transmittance [B, T^2] at the end of each tile's walk, which matches the XLA walk's wherever the pixel has
+        not terminated.
+
+    Raises:
+      ValueError: on a GPU backend, when the tile area T^2 or the list's words M / 32 is not a power of two.
     """
     num_tiles, num_entries = features[0].shape
     per_tile = pixels.shape[1]
@@ -222,9 +231,19 @@ def composite_slots(alpha: jax.Array, r: jax.Array, g: jax.Array, b: jax.Array,
                     z: jax.Array) -> tuple[jax.Array, ...]:
     """Front-to-back compositing of K slots per pixel, all inputs [K, P] float32 (slot-major, depth order).
 
-    Returns ``(color_r, color_g, color_b, depth, silhouette, depth_sq, final_transmittance)``, each [P]:
-    ``sum_k w_k x_k`` with ``w_k = alpha_k prod_{j<k} (1 - alpha_j)``, and ``prod_k (1 - alpha_k)``.
     Differentiable in reverse mode (a Pallas backward kernel); no forward mode.
+
+    Args:
+      alpha: [K, P] float32 alpha of each slot (0 for an empty slot).
+      r: [K, P] float32 red of each slot.
+      g: [K, P] float32 green of each slot.
+      b: [K, P] float32 blue of each slot.
+      z: [K, P] float32 camera depth of each slot (m).
+
+    Returns:
+      Seven [P] float32 arrays, ``(color_r, color_g, color_b, depth, silhouette, depth_sq,
+        final_transmittance)``: ``sum_k w_k x_k`` for x = r, g, b, z, 1 and z^2, with
+        ``w_k = alpha_k prod_{j<k} (1 - alpha_j)``, and ``prod_k (1 - alpha_k)``.
     """
     return tuple(_composite_forward(alpha, r, g, b, z))
 

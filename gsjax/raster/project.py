@@ -37,9 +37,16 @@ class Splat(NamedTuple):
     arrays vectorise far better than a packed minor axis).
 
     Attributes:
-      u, v: centre (px); conic_a, conic_b, conic_c: inverse 2D covariance [[a, b], [b, c]] (1/px^2);
-      depth: camera z (m); opacity: sigmoid(logit); cov_xx, cov_yy: diagonal of the 2D covariance (px^2);
-      in_front: bool, z > near.
+      u: centre's column ``fx X/Z + cx`` (px).
+      v: centre's row ``fy Y/Z + cy`` (px).
+      conic_a: entry a of the inverse 2D covariance [[a, b], [b, c]] (1/px^2).
+      conic_b: entry b of the inverse 2D covariance (1/px^2).
+      conic_c: entry c of the inverse 2D covariance (1/px^2).
+      depth: camera z (m), as given (not replaced behind the near plane).
+      opacity: sigmoid(logit_opacity), in (0, 1).
+      cov_xx: 2D covariance's xx entry (px^2), dilation included.
+      cov_yy: 2D covariance's yy entry (px^2), dilation included.
+      in_front: bool, z > near; where False the other fields hold harmless values.
     """
 
     u: jax.Array
@@ -56,10 +63,23 @@ class Splat(NamedTuple):
 
 def splat(x: jax.Array, y: jax.Array, z: jax.Array, log_scale: jax.Array, logit_opacity: jax.Array,
           intrinsics: Intrinsics, near: float | jax.Array, dilation: float | jax.Array = DILATION) -> Splat:
-    """EWA projection of isotropic Gaussians at camera-frame centres (x, y, z) (m), elementwise; ``dilation``
-    (px^2) is added to the 2D covariance.
+    """EWA projection of isotropic Gaussians at camera-frame centres (x, y, z) (m), elementwise.
 
     Entries behind the near plane get harmless values (and zero gradient through z); ``in_front`` marks them.
+    Differentiable w.r.t. every array argument.
+
+    Args:
+      x: camera-frame X of the centres (m), any shape (the arguments broadcast elementwise).
+      y: camera-frame Y of the centres (m).
+      z: camera-frame Z (depth) of the centres (m).
+      log_scale: log of the standard deviation (m) of each isotropic Gaussian.
+      logit_opacity: logit of each opacity.
+      intrinsics: :class:`~gsjax.camera.Intrinsics` of the image (px).
+      near: near plane (m); entries with ``z <= near`` are culled (``in_front`` False).
+      dilation: added to the diagonal of the 2D covariance (px^2), 0.3 by default (``RasterSettings.dilation``).
+
+    Returns:
+      Screen-space Gaussians as a :class:`Splat`, every field of the arguments' broadcast shape.
     """
     in_front = z > near
     z_safe = jnp.where(in_front, z, 1.0)
@@ -89,14 +109,32 @@ def splat(x: jax.Array, y: jax.Array, z: jax.Array, log_scale: jax.Array, logit_
 
 
 def to_camera(x: jax.Array, y: jax.Array, z: jax.Array, w2c: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """World points given as coordinate arrays (m), elementwise -> camera-frame coordinate arrays."""
+    """World points given as coordinate arrays (m), elementwise -> camera-frame coordinate arrays.
+
+    Args:
+      x: world X (m), any shape (x, y and z broadcast elementwise).
+      y: world Y (m).
+      z: world Z (m).
+      w2c: [4, 4] world-to-camera rigid transform (m); only its top 3 rows are read.
+
+    Returns:
+      The camera-frame coordinates ``R p + t`` as three arrays (x, y, z) (m) of the arguments' broadcast shape.
+    """
     r, t = w2c[:3, :3], w2c[:3, 3]
     x_c, y_c, z_c = (r[i, 0] * x + r[i, 1] * y + r[i, 2] * z + t[i] for i in range(3))
     return x_c, y_c, z_c
 
 
 def sanitized(gaussians: Gaussians) -> Gaussians:
-    """Free slots replaced by harmless constants, so whatever they hold they get exactly zero gradient."""
+    """Free slots replaced by harmless constants, so whatever they hold they get exactly zero gradient.
+
+    Args:
+      gaussians: :class:`~gsjax.gaussians.Gaussians` with N slots.
+
+    Returns:
+      Gaussians with the same N slots: active ones unchanged; free ones with means, log_scales and rgb 0 and
+        logit_opacities -20 (opacity about 2e-9, below the 1/255 that contributes); ``active`` unchanged.
+    """
     active = gaussians.active
     return Gaussians(
         means=jnp.where(active[:, None], gaussians.means, 0.0),
@@ -130,7 +168,19 @@ class Projected(NamedTuple):
 def project(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near: float | jax.Array,
             dilation: float | jax.Array = DILATION) -> Projected:
     """Project Gaussians [N] with world-to-camera ``w2c`` [4, 4] into the image of ``intrinsics`` (values only:
-    the differentiable path recomputes :func:`splat` per contributor slot)."""
+    the differentiable path recomputes :func:`splat` per contributor slot).
+
+    Args:
+      gaussians: :class:`~gsjax.gaussians.Gaussians` with N slots (free slots are never visible).
+      w2c: [4, 4] world-to-camera rigid transform (m).
+      intrinsics: :class:`~gsjax.camera.Intrinsics` of the image (px).
+      near: near plane (m); Gaussians with camera z <= near are not visible.
+      dilation: added to the diagonal of the 2D covariance (px^2), 0.3 by default (``RasterSettings.dilation``).
+
+    Returns:
+      Screen-space Gaussians as a :class:`Projected` with N entries, under ``stop_gradient`` (no gradient flows
+        through it).
+    """
     g = sanitized(jax.lax.stop_gradient(gaussians))
     x, y, z = to_camera(g.means[:, 0], g.means[:, 1], g.means[:, 2], jax.lax.stop_gradient(w2c))
     s = splat(x, y, z, g.log_scales, g.logit_opacities, intrinsics, near, dilation)
@@ -147,7 +197,15 @@ def project(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, near: 
 
 
 def straight_through_min(x: jax.Array, upper: float) -> jax.Array:
-    """``min(x, upper)`` in the forward pass with the gradient of ``x`` (SplaTAM's alpha clamp, A.3)."""
+    """``min(x, upper)`` in the forward pass with the gradient of ``x`` (SplaTAM's alpha clamp, A.3).
+
+    Args:
+      x: the values, any shape.
+      upper: the clamp.
+
+    Returns:
+      ``min(x, upper)``, of ``x``'s shape, whose gradient w.r.t. ``x`` is the identity (also above the clamp).
+    """
     return x - jax.lax.stop_gradient(x - jnp.minimum(x, upper))
 
 
@@ -155,7 +213,18 @@ def gaussian_alpha(dx: jax.Array, dy: jax.Array, a: jax.Array, b: jax.Array, c: 
                    opacity: jax.Array) -> jax.Array:
     """Per-pixel alpha = min(0.99, o exp(-(a dx^2 + 2 b dx dy + c dy^2) / 2)), straight-through at the clamp.
 
-    ``dx, dy`` are pixel minus centre (px); (a, b, c) the conic; all arguments broadcast elementwise.
+    No 1/255 threshold is applied here (callers test ``alpha >= ALPHA_MIN`` where they need it).
+
+    Args:
+      dx: pixel u minus centre u (px); all arguments broadcast elementwise.
+      dy: pixel v minus centre v (px).
+      a: conic entry a, the inverse 2D covariance [[a, b], [b, c]] (1/px^2).
+      b: conic entry b (1/px^2).
+      c: conic entry c (1/px^2).
+      opacity: opacity o in (0, 1).
+
+    Returns:
+      alpha in [0, 0.99] of the arguments' broadcast shape.
     """
     power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
     return straight_through_min(opacity * jnp.exp(power), ALPHA_MAX)

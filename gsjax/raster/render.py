@@ -73,6 +73,18 @@ def check_render_inputs(gaussians: Gaussians, w2c: jax.typing.ArrayLike, intrins
 
     Shape and type checks always run; value checks (finiteness, rigidity, positivity) only when the values are
     concrete, i.e. they are skipped when ``render`` is called under an outer ``jax.jit``/``vmap``/``grad`` trace.
+
+    Args:
+      gaussians: the map (:func:`gsjax.gaussians.check_gaussians`: fields' shapes and dtypes, finite active slots).
+      w2c: [4, 4] floating-point world-to-camera pose (m); when concrete, finite and rigid within 1e-3.
+      intrinsics: a :class:`gsjax.camera.Intrinsics` (:meth:`gsjax.camera.Intrinsics.check`).
+      settings: a :class:`gsjax.raster.RasterSettings`.
+      cbknn: None, or a :class:`gsjax.raster.cbknn.CBKNN` whose ``k_max`` does not exceed
+        ``settings.max_contributors``.
+      motion: a scalar, in [0, 1] when concrete.
+
+    Raises:
+      ValueError: naming the first argument that is not valid.
     """
     check_gaussians(gaussians)
     if not isinstance(intrinsics, Intrinsics):
@@ -128,8 +140,9 @@ def render(
         pose (:func:`select_slots`, same intrinsics and settings) composites those slots instead (no binning, no walk).
 
     Returns:
-      :class:`Render` with colour [H, W, 3], depth [H, W] = sum w z (not normalised by the silhouette),
-      silhouette [H, W] = sum w, depth_sq [H, W] = sum w z^2, and truncation diagnostics in ``stats``.
+      The render, a :class:`Render` with colour [H, W, 3], depth [H, W] = sum w z (not normalised by the
+        silhouette), silhouette [H, W] = sum w, depth_sq [H, W] = sum w z^2, and truncation diagnostics in
+        ``stats``.
 
     Conventions: pixel (row i, column j) is evaluated at (u, v) = (j, i); a camera point projects to
     u = fx X/Z + cx, v = fy Y/Z + cy. Each Gaussian has 2D covariance s^2 J J^T + 0.3 px^2 (``settings.dilation``;
@@ -181,7 +194,18 @@ class SlotSelection(NamedTuple):
 
 def empty_selection(intrinsics: Intrinsics, settings: RasterSettings, batch: tuple[int, ...] = ()) -> SlotSelection:
     """A :class:`SlotSelection` of ``batch``-shaped stacks with every slot empty, of the shapes :func:`select_slots`
-    gives for ``intrinsics`` and ``settings`` (a placeholder a loop carries until its first selection)."""
+    gives for ``intrinsics`` and ``settings`` (a placeholder a loop carries until its first selection).
+
+    Args:
+      intrinsics: the camera (its image size sets the tile grid).
+      settings: the rasterizer settings (``tile_size`` and K = ``max_contributors`` are read).
+      batch: leading shape of the stack; () for one selection.
+
+    Returns:
+      The selection: ids ``[*batch, K, P]`` int32 all -1; num_kept ``[*batch, P]`` int32 zeros; out_of_k
+        and cut_by_list ``[*batch, P]`` bool False; residual_list ``[*batch, P]`` float32 zeros;
+        tiles_overflowed and intersections_dropped ``[*batch]`` int32 zeros. P is the tile grid's pixels.
+    """
     grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
     pixels = batch + (grid.num_tiles * grid.pixels_per_tile,)
     return SlotSelection(ids=jnp.full(batch + (settings.max_contributors,) + pixels[-1:], -1, jnp.int32),
@@ -258,7 +282,22 @@ def strided_selection(selection: SlotSelection, height: int, width: int, tile_si
     """The slots of every other pixel from (``row``, ``col``) (0 or 1, may be traced) of a ``selection`` made for an
     image ``height`` x ``width`` with ``tile_size`` tiles, laid out for that strided image
     (:meth:`gsjax.camera.Intrinsics.strided`) with ``strided_tile_size`` tiles. The strided render's contributors are
-    the full render's at those pixels, so this is the strided image's own selection at the same pose."""
+    the full render's at those pixels, so this is the strided image's own selection at the same pose.
+
+    Args:
+      selection: a selection of one image (ids [K, P], not stacked) made with ``tile_size`` tiles.
+      height: the full image's height (px).
+      width: the full image's width (px).
+      tile_size: the full image's tile side (px).
+      strided_tile_size: the strided image's tile side (px).
+      row: first row of the strided pixels, 0 or 1 (may be traced).
+      col: first column of the strided pixels, 0 or 1 (may be traced).
+
+    Returns:
+      The selection of the ``height // 2`` x ``width // 2`` strided image: ids [K, P'] and the per-pixel fields
+        [P'] for the P' pixels of its tile grid; ``tiles_overflowed`` and ``intersections_dropped`` are the full
+        image's.
+    """
     full = TileGrid.for_image(height, width, tile_size)
     part = TileGrid.for_image(height // 2, width // 2, strided_tile_size)
     # (u, v) of each strided pixel, tile-major (numpy: shapes are static, and this runs under jit)

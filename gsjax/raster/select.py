@@ -50,13 +50,21 @@ class Selection(NamedTuple):
 
 
 def first_set_bits(words: jax.Array, k: int) -> jax.Array:
-    """Positions of the first ``k`` set bits of bit strings packed as words [W, P] -> [k, P] int32 (-1 if fewer).
+    """Positions of the first ``k`` set bits of P bit strings, each packed into W 32-bit words.
 
     Slot s lies in the first word whose running popcount exceeds s; its position there is found by a binary
     search on the popcounts of the word's halves. All of it is elementwise over [k, P] with a short unrolled loop
     over the W words: one vectorised pass, several times faster on XLA:CPU than popping the lowest set bit k times.
     It runs inside a loop of at most one pass (none when no bit is set), whose output XLA materialises: fused
     into the gathers that read the positions, the same arithmetic runs unvectorised, several times slower.
+
+    Args:
+      words: [W, P] uint32 bit strings, one per column: bit j (least significant first) of word w is position
+        ``32 w + j``.
+      k: number of set bits to find per string (static).
+
+    Returns:
+      [k, P] int32 positions of each string's first ``k`` set bits in increasing order; -1 past its last set bit.
     """
     num_words = words.shape[0]
     counts = jax.lax.population_count(words).astype(jnp.int32)
@@ -179,7 +187,21 @@ def select_contributors(
     projected: Projected, tiles: TileLists, grid: TileGrid, k: int, tiles_per_batch: int, use_pallas: bool = False
 ) -> Selection:
     """First ``k`` contributors of every pixel of ``grid``: the XLA walk processes ``tiles_per_batch`` tiles at a
-    time; with ``use_pallas`` the walk is a Pallas kernel over all tiles (its state is per program, so no batching)."""
+    time; with ``use_pallas`` the walk is a Pallas kernel over all tiles (its state is per program, so no batching).
+
+    Args:
+      projected: the projected Gaussians (``uv``, ``conic`` and ``opacity`` are read; no gradient flows).
+      tiles: the depth-sorted tile lists of ``grid`` (:func:`gsjax.raster.binning.bin_gaussians`).
+      grid: the tile grid of the image.
+      k: contributor slots per pixel (``max_contributors``).
+      tiles_per_batch: most tiles the XLA walk processes at a time (bounds its memory; ignored with
+        ``use_pallas``).
+      use_pallas: walk with the Pallas kernel (:func:`gsjax.raster.pallas.walk_select`) instead of XLA.
+
+    Returns:
+      The first-k contributors of the P = ``grid.num_tiles * tile_size^2`` pixels, tile-major, as a
+        :class:`Selection`.
+    """
     table = jax.lax.stop_gradient(
         jnp.concatenate([projected.uv, projected.conic, projected.opacity[:, None]], axis=-1)
     )

@@ -38,14 +38,17 @@ class Chunk(NamedTuple):
     """One processed chunk, as :func:`chunk_loop` yields it.
 
     Attributes:
-      start, count: its first frame and number of real frames.
+      start: the index of its first frame in the sequence.
+      count: its number of real frames (at most the chunk size; the last chunk may be shorter).
       frames: the ``count`` host frames read (with their ground truth, for the shell's warnings).
       state: the state after the chunk.
       outputs: :class:`StepOutputs` of the real frames as numpy, [count, ...].
-      capacity: the map capacity after the chunk.
+      capacity: the map capacity (Gaussian slots) after the chunk.
       seconds: wall time of the chunk's final scan (s), from its launch until its outputs are on the host (the next
-        chunk's frames are read meanwhile); regrow_seconds: of scans redone for capacity; read_seconds: of reading
-        its frames (behind the previous chunk's scan, except for the first chunk).
+        chunk's frames are read meanwhile).
+      regrow_seconds: wall time (s) of the scans redone for capacity (growing the map and re-running the chunk).
+      read_seconds: wall time (s) of reading its frames (behind the previous chunk's scan, except for the first
+        chunk).
     """
 
     start: int
@@ -60,8 +63,19 @@ class Chunk(NamedTuple):
 
 
 def pad_chunk(frames: list[Frame], size: int) -> tuple[Frame, jax.Array]:
-    """Stack ``frames`` without their ground truth and pad to ``size`` with copies of the last one -> (chunk on
-    device, valid mask [size]); a short last chunk then reuses the compiled program."""
+    """Stack ``frames`` without their ground truth and pad them to ``size`` frames, on the device.
+
+    The padding repeats the last frame, so a short last chunk reuses the compiled program of a full one.
+
+    Args:
+      frames: 1 to ``size`` host frames (numpy leaves) of equal shapes.
+      size: the chunk size C.
+
+    Returns:
+      frames (Frame): the stacked frames as jax arrays with a leading axis of ``size`` on every leaf (ground-truth
+        poses blanked: identity, ``pose_valid`` False).
+      valid (jax.Array): [size] bool, the real frames (True for the first ``len(frames)``).
+    """
     valid = np.arange(size) < len(frames)
     padded = list(frames) + [frames[-1]] * (size - len(frames))
     return to_device(without_ground_truth(stack_frames(padded))), jnp.asarray(valid)
@@ -69,8 +83,23 @@ def pad_chunk(frames: list[Frame], size: int) -> tuple[Frame, jax.Array]:
 
 @jax.jit
 def run_batch_chunk(states, frames, valid, configs, intrinsics, poses):
-    """:func:`gsjax.slam.system.run_chunk` vmapped over stacked ``states`` and ``configs`` (leading axis V), the
-    same frames for all: the program a sweep calls for a group of stacked configs -> (states, outputs [V, C, ...])."""
+    """:func:`gsjax.slam.system.run_chunk` vmapped over V stacked states and configs, the same frames for all (jitted).
+
+    The program a sweep calls for a group of stacked configs (:class:`Group` with ``stacked``).
+
+    Args:
+      states (SlamState): V states stacked on a leading axis (:func:`stack_trees`).
+      frames (Frame): the chunk, a leading axis of C on every leaf (:func:`pad_chunk`), shared by all V.
+      valid (jax.Array): [C] bool, the real frames (False: padding).
+      configs (SlamConfig): V configs with the same static fields, stacked on a leading axis (:func:`stack_trees`).
+      intrinsics (Intrinsics): the camera at the frames' resolution, shared by all V.
+      poses (jax.Array | None): [C, 4, 4] known world-to-camera poses (m) to map at instead of tracking, shared by
+        all V; None tracks.
+
+    Returns:
+      states (SlamState): the V states after the chunk, stacked on a leading axis.
+      outputs (StepOutputs): their outputs, every leaf [V, C, ...].
+    """
     return jax.vmap(run_chunk, in_axes=(0, None, None, 0, None, None))(states, frames, valid, configs, intrinsics,
                                                                         poses)
 
@@ -93,13 +122,29 @@ def chunk_loop(
     on_grow: Callable[[int, int, int, int], None] | None = None,
     call: Callable | None = None,
 ) -> Iterator[Chunk]:
-    """Run frames ``start .. total-1`` through SLAM from ``state``, ``chunk`` frames per scan; yield a
-    :class:`Chunk` after each.
+    """Run frames ``start`` to ``total - 1`` through SLAM for one config, ``chunk`` frames per scan.
 
-    ``read_frame(i)`` gives host frame ``i``; its ground-truth pose is blanked before it reaches the core.
-    ``poses`` [total, 4, 4] w2c: known poses instead of tracking (mapping-only studies); None tracks.
-    ``on_grow(dropped, first, last, new_capacity)`` is told before a chunk is re-run with a doubled capacity.
-    ``call``: how a chunk's ``run_chunk`` is called (:func:`batch_chunk_loop`).
+    :func:`batch_chunk_loop` with a single unstacked :class:`Group`. When a chunk dropped Gaussians, the map's
+    capacity doubles (as often as needed) and the chunk is re-run from its starting state.
+
+    Args:
+      state: the state after frames ``0 .. start - 1`` (:func:`gsjax.slam.state.initial_state` when ``start`` is 0).
+      read_frame: ``read_frame(i)`` gives host frame ``i``; its ground-truth pose is blanked before it reaches the
+        core.
+      total: the sequence's length; the last frame processed is ``total - 1``.
+      config: the SLAM config.
+      intrinsics: the camera at the frames' resolution.
+      chunk: frames per jitted scan (C); a short last chunk is padded to it.
+      start: the first frame to process.
+      poses: [total, 4, 4] known world-to-camera poses (m), indexed by frame, to map at instead of tracking
+        (mapping-only studies); None tracks.
+      on_grow: ``on_grow(dropped, first, last, new_capacity)`` is told before a chunk is re-run with a doubled
+        capacity: the Gaussians dropped over the chunk, its first and last frame, the new capacity; None: nothing.
+      call: how a chunk's ``run_chunk`` is called (``call(run_chunk, *args)``, as :func:`batch_chunk_loop`);
+        None calls it directly.
+
+    Yields:
+      Each chunk's :class:`Chunk` once it has run, in frame order.
     """
     for batch in batch_chunk_loop([Group(state, config)], read_frame, total, intrinsics, chunk=chunk, start=start,
                                   poses=poses, on_grow=lambda group, *info: on_grow and on_grow(*info), call=call):
@@ -108,8 +153,16 @@ def chunk_loop(
 
 
 class Group(NamedTuple):
-    """One program call's worth of a batch: a state and its config, or (``stacked``) ``V`` states and configs
-    stacked on a leading axis and run as one vmapped program."""
+    """One program call's worth of a batch: a state and its config, or V of each stacked and run as one program.
+
+    Attributes:
+      state: the :class:`SlamState` to continue from, or, when ``stacked``, V states stacked on a leading axis
+        (:func:`stack_trees`).
+      config: its :class:`SlamConfig`, or, when ``stacked``, V configs with the same static fields stacked on a
+        leading axis.
+      stacked: whether ``state`` and ``config`` are stacked and run vmapped (:func:`run_batch_chunk`); False by
+        default.
+    """
 
     state: SlamState
     config: SlamConfig
@@ -117,8 +170,22 @@ class Group(NamedTuple):
 
 
 class BatchChunk(NamedTuple):
-    """One chunk of :func:`batch_chunk_loop`: as :class:`Chunk`, with the new state and the outputs ([count, ...],
-    or [V, count, ...] for a stacked group) per group."""
+    """One chunk of :func:`batch_chunk_loop`: as :class:`Chunk`, with a new state and outputs per group.
+
+    Attributes:
+      start: the index of its first frame in the sequence.
+      count: its number of real frames (at most the chunk size; the last chunk may be shorter).
+      frames: the ``count`` host frames read (with their ground truth), shared by every group.
+      states: per group, the :class:`SlamState` after the chunk (V stacked states for a stacked group), on the
+        device.
+      outputs: per group, the :class:`StepOutputs` of the real frames as numpy, [count, ...], or [V, count, ...]
+        for a stacked group.
+      seconds: wall time (s) from stacking the chunk's frames and launching every group's chunk until all their
+        outputs are on the host (the next chunk's frames are read meanwhile), the scans redone for capacity aside.
+      regrow_seconds: wall time (s) of the scans redone for capacity, summed over the groups.
+      read_seconds: wall time (s) of reading its frames (behind the previous chunk's scans, except for the first
+        chunk).
+    """
 
     start: int
     count: int  # type: ignore[assignment]  # shadows tuple.count: the name is public
@@ -152,15 +219,35 @@ def batch_chunk_loop(
     fetch: Callable = jax.device_get,
     call: Callable | None = None,
 ) -> Iterator[BatchChunk]:
-    """:func:`chunk_loop` for several groups over the same frames (read once per chunk): every group's chunk is
-    dispatched before any result is awaited, so groups placed on different devices run at the same time.
+    """:func:`chunk_loop` for several groups over the same frames, each chunk's frames read once.
 
-    A group whose chunk dropped Gaussians is grown (every entry of a stacked group) and re-run on its own;
-    ``on_grow(group, dropped, first, last, new_capacity)`` is told first. ``place(group_index, state)`` puts a grown
-    state back where the group lives (None: JAX's default placement). ``fetch`` brings a chunk's outputs to the
-    host (a multi-process sweep gathers a group sharded over processes). ``call(run_chunk, *args)`` runs a
-    one-config group's chunk (None: ``run_chunk(*args)``; the shell passes
-    :meth:`gsjax.app.programs.ExportedPrograms.call`, which skips tracing in a warm process).
+    Every group's chunk is dispatched before any result is awaited, so groups placed on different devices run at
+    the same time. The next chunk's frames are read on the host while the current one runs. A group whose chunk
+    dropped Gaussians is grown (capacity doubled, every entry of a stacked group) and re-run on its own, as often
+    as needed.
+
+    Args:
+      groups: the groups to run, each a state and its config (:class:`Group`).
+      read_frame: ``read_frame(i)`` gives host frame ``i``; its ground-truth pose is blanked before it reaches the
+        core.
+      total: the sequence's length; the last frame processed is ``total - 1``.
+      intrinsics: the camera at the frames' resolution.
+      chunk: frames per jitted scan (C); a short last chunk is padded to it.
+      start: the first frame to process (the groups' states are those after frames ``0 .. start - 1``).
+      poses: [total, 4, 4] known world-to-camera poses (m), indexed by frame, to map at instead of tracking; None
+        tracks.
+      on_grow: ``on_grow(group, dropped, first, last, new_capacity)`` is told before a group's chunk is re-run with a
+        doubled capacity: the group's index, the Gaussians dropped over the chunk (all its entries), the chunk's
+        first and last frame, the new capacity; None: nothing.
+      place: ``place(group_index, state)`` puts a grown state back where the group lives; None: JAX's default
+        placement.
+      fetch: brings a chunk's outputs to the host (a multi-process sweep gathers a group sharded over processes);
+        ``jax.device_get`` by default.
+      call: ``call(run_chunk, *args)`` runs a one-config group's chunk; None: ``run_chunk(*args)``. The shell passes
+        :meth:`gsjax.app.programs.ExportedPrograms.call`, which skips tracing in a warm process.
+
+    Yields:
+      Each chunk's :class:`BatchChunk` once every group has run it, in frame order.
     """
     place = place or (lambda index, state: state)
     states = [g.state for g in groups]
@@ -217,7 +304,17 @@ def _capacity(state: SlamState, batched: bool) -> int:
 
 
 def concat_outputs(chunks: list[StepOutputs], batched: bool = False) -> StepOutputs:
-    """Per-chunk outputs joined along the frame axis."""
+    """Per-chunk outputs joined along the frame axis.
+
+    Args:
+      chunks: the chunks' :class:`StepOutputs` (numpy leaves), in frame order.
+      batched: the outputs are a stacked group's, [V, count, ...], joined along axis 1; False: [count, ...],
+        joined along axis 0.
+
+    Returns:
+      The joined :class:`StepOutputs` of numpy arrays, [T, ...] or (``batched``) [V, T, ...], T the chunks' frames
+        together.
+    """
     axis = 1 if batched else 0
     return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=axis), *chunks)
 
@@ -305,8 +402,17 @@ def run(
 
 
 def stack_trees(trees: list[_Tree]) -> _Tree:
-    """Trees of one structure (configs with the same static fields, states of one shape) stacked on a new leading
-    axis; raises ValueError when their static fields differ."""
+    """Trees of one structure stacked on a new leading axis (configs with the same static fields, states of one shape).
+
+    Args:
+      trees: V >= 1 pytrees of one structure (static fields included) and leaf shapes.
+
+    Returns:
+      A tree of that structure whose every leaf is the V leaves stacked, a jax array [V, ...].
+
+    Raises:
+      ValueError: the trees differ in structure or static fields.
+    """
     structure = jax.tree_util.tree_structure(trees[0])
     for tree in trees[1:]:
         if jax.tree_util.tree_structure(tree) != structure:  # type: ignore[operator]  # PyTreeDef defines !=
@@ -315,10 +421,26 @@ def stack_trees(trees: list[_Tree]) -> _Tree:
 
 
 def unstack_tree(tree: _Tree, index: int) -> _Tree:
-    """Entry ``index`` of a batched tree."""
+    """Entry ``index`` of a batched tree.
+
+    Args:
+      tree: a pytree whose every leaf has a leading axis (V, as :func:`stack_trees` makes).
+      index: the entry to take, in [0, V).
+
+    Returns:
+      A tree of the same structure with every leaf ``leaf[index]``.
+    """
     return jax.tree_util.tree_map(lambda x: x[index], tree)
 
 
 def static_key(config: SlamConfig) -> jax.tree_util.PyTreeDef:
-    """What decides a config's compiled program: its tree structure, which holds every static field."""
+    """What decides a config's compiled program: its tree structure, which holds every static field.
+
+    Args:
+      config: the SLAM config.
+
+    Returns:
+      The config's pytree structure; two configs with equal keys can be stacked (:func:`stack_trees`) and run by
+        one program.
+    """
     return jax.tree_util.tree_structure(config)

@@ -15,17 +15,35 @@ CURRENT = -1  # window entry that stands for the current frame
 
 
 class Window(NamedTuple):
-    """Mapping window of ``window_size`` entries: ``index`` [W] int32 into the keyframe buffer (``CURRENT`` = -1
-    for the current frame) and ``valid`` [W] bool. Layout: randomly chosen overlapping keyframes, then the most
-    recent keyframe, then the current frame (always valid)."""
+    """Mapping window of W = ``window_size`` entries, as :func:`select_window` makes it.
+
+    Layout: randomly chosen overlapping keyframes, then the most recent keyframe, then the current frame (always
+    valid).
+
+    Attributes:
+      index: [W] int32 slot of each entry in the keyframe buffer; ``CURRENT`` (-1) for the current frame.
+      valid: [W] bool, whether the entry is a view to map on (entries without an overlapping keyframe, and the
+        most recent keyframe's entry while the buffer is empty, are not).
+    """
 
     index: jax.Array  # type: ignore[assignment]  # shadows tuple.index: the name is public
     valid: jax.Array
 
 
 def sample_points(key: jax.Array, depth: jax.Array, w2c: jax.Array, intrinsics: Intrinsics, count: int) -> jax.Array:
-    """World points [count, 3] back-projected from ``count`` pixels drawn uniformly, with replacement, among the
-    pixels with valid depth (the origin when there is none)."""
+    """World points back-projected from ``count`` pixels drawn uniformly, with replacement, among the valid ones.
+
+    Args:
+      key: PRNG key of the draw.
+      depth: [H, W] depth (m); pixels with depth > 0 are valid. With none, the pixels are drawn among all of them
+        and back-project to the camera centre.
+      w2c: [4, 4] world-to-camera pose of the depth image (m).
+      intrinsics: the camera of ``depth``.
+      count: number of points (static).
+
+    Returns:
+      [count, 3] world points (m).
+    """
     valid = (depth > 0).reshape(-1)
     total = jnp.sum(valid)
     probabilities = jnp.where(total > 0, valid / jnp.maximum(total, 1), 1.0 / valid.size)
@@ -41,6 +59,16 @@ def smooth_points(key: jax.Array, points: jax.Array, config: CBKNNConfig) -> jax
     Density from the ``smoothing_base_k`` nearest neighbours (self included); K per point grows linearly with the
     min-max normalised density from ``smoothing_min_k`` to ``smoothing_max_k``; each point becomes the unweighted
     mean of a random subset of ``max(1, floor(K (1 - dropout)))`` of its K nearest neighbours (unchanged if 1).
+    K is capped at the number of points.
+
+    Args:
+      key: PRNG key of the random subsets.
+      points: [N, 3] world points (m), e.g. from :func:`sample_points`.
+      config: CB-KNN's config (``smoothing_base_k``, ``smoothing_min_k``, ``smoothing_max_k``,
+        ``smoothing_dropout``).
+
+    Returns:
+      [N, 3] smoothed points (m), in the dtype of ``points``.
     """
     count = points.shape[0]
     k_max = min(config.smoothing_max_k, count)
@@ -64,7 +92,18 @@ def smooth_points(key: jax.Array, points: jax.Array, config: CBKNNConfig) -> jax
 
 def overlap_fractions(points: jax.Array, keyframes: KeyframeBuffer, intrinsics: Intrinsics,
                       margin: float | jax.Array) -> jax.Array:
-    """[F] fraction of the world points that project inside each keyframe (``margin`` px from the border, z > 0)."""
+    """The fraction of the world points that project inside each keyframe (``margin`` px from the border, z > 0).
+
+    Args:
+      points: [N, 3] world points (m).
+      keyframes: the keyframe buffer; every one of its F slots is measured, empty ones included (at their stored
+        pose).
+      intrinsics: the camera of the keyframes.
+      margin: border (px) a projected point must clear, strictly, on every side.
+
+    Returns:
+      [F] float32 fraction in [0, 1] per keyframe slot.
+    """
     cam = jnp.einsum("fij,nj->fni", keyframes.w2c[:, :3, :3], points) + keyframes.w2c[:, None, :3, 3]
     z = cam[..., 2]
     uv = project_points(cam.at[..., 2].set(jnp.where(z > 0, z, 1.0)), intrinsics)
@@ -84,7 +123,20 @@ def select_window(
 ) -> Window:
     """SplaTAM's window: keyframes (all but the most recent) that any of the current frame's sampled points
     project into, in random order, the first ``window_size - 2`` of them; then the most recent keyframe; then the
-    current frame. Points come from the current depth at the estimated pose ``w2c``."""
+    current frame. Points come from the current depth at the estimated pose ``w2c``.
+
+    Args:
+      key: PRNG key (split for the point samples, their smoothing and the keyframes' order).
+      keyframes: the keyframe buffer (the current frame not yet pushed).
+      depth: [H, W] current depth (m; 0 = invalid).
+      w2c: [4, 4] estimated world-to-camera pose of the current frame (m).
+      intrinsics: the camera of the frames.
+      mapping: the mapping config (``window_size``, ``overlap_samples``, ``overlap_margin`` in px).
+      cbknn: CB-KNN's config: the samples are smoothed (:func:`smooth_points`) when its ``smooth_overlap`` holds.
+
+    Returns:
+      The window of ``mapping.window_size`` entries, as a :class:`Window`.
+    """
     key_points, key_smooth, key_order = jax.random.split(key, 3)
     points = sample_points(key_points, depth, w2c, intrinsics, mapping.overlap_samples)
     if cbknn.smooth_overlap:

@@ -49,7 +49,7 @@ def directions(axes: tuple[str, ...]) -> jax.Array:
 
     Returns:
       [A, 6] float32 tangents (rho m, phi rad): 0.01 m per cm in the translation component of a ``t`` axis,
-      pi / 180 rad per degree in the rotation component of an ``r`` axis, 0 elsewhere.
+        pi / 180 rad per degree in the rotation component of an ``r`` axis, 0 elsewhere.
     """
     rows = []
     for name in axes:
@@ -59,7 +59,7 @@ def directions(axes: tuple[str, ...]) -> jax.Array:
 
 
 class Landscape2d(NamedTuple):
-    """The landscape over the plane of two axes, at grid point [i, j] = (offsets[0][i], offsets[1][j]).
+    """The landscape over the plane of two axes, at grid point [i, j] = (``offsets[0][i]``, ``offsets[1][j]``).
 
     Attributes:
       loss: [S, S] the tracking loss.

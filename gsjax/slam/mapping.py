@@ -22,8 +22,17 @@ from gsjax.slam.views import render_view, strided_frame, strided_setup, strided_
 
 
 class WindowFrames(NamedTuple):
-    """The renderable views of a window: colour [V, H, W, 3], depth [V, H, W], w2c [V, 4, 4], gamma [V],
-    keyframe [V] bool (renders smoothed in ``paper`` mode), valid [V] bool."""
+    """The renderable views of a window, V entries (one per :class:`gsjax.slam.keyframes.Window` entry).
+
+    Attributes:
+      color: [V, H, W, 3] float32 colour in [0, 1] (keyframes decoded from uint8).
+      depth: [V, H, W] float32 depth (m; 0 = invalid), keyframes' to the mm.
+      w2c: [V, 4, 4] float32 estimated world-to-camera poses (m).
+      gamma: [V] float32 CB-KNN's motion gamma of each view's tracking.
+      keyframe: [V] bool, the view is a keyframe (its renders are smoothed in ``paper`` mode): true for stored
+        keyframes, the current frame's flag for the current frame.
+      valid: [V] bool, the window's ``valid`` (only valid views are drawn).
+    """
 
     color: jax.Array
     depth: jax.Array
@@ -37,7 +46,21 @@ def gather_window_frames(
     window: Window, keyframes: KeyframeBuffer, color: jax.Array, depth: jax.Array, w2c: jax.Array,
     gamma: jax.Array, current_is_keyframe: jax.Array
 ) -> WindowFrames:
-    """Gather the window's views from the keyframe buffer and the current frame."""
+    """Gather the window's views from the keyframe buffer and the current frame.
+
+    Args:
+      window: the mapping window (:func:`gsjax.slam.keyframes.select_window`), W entries.
+      keyframes: the keyframe buffer the window's slots index.
+      color: [H, W, 3] float32 colour of the current frame in [0, 1].
+      depth: [H, W] float32 depth of the current frame (m; 0 = invalid).
+      w2c: [4, 4] float32 estimated world-to-camera pose of the current frame (m).
+      gamma: [] float32 CB-KNN's motion gamma of the current frame.
+      current_is_keyframe: [] bool, whether the current frame is a keyframe.
+
+    Returns:
+      W views as :class:`WindowFrames` (V = W), in the window's order (an invalid entry holds some slot's
+        content and is never drawn).
+    """
     current = window.index == CURRENT
     slot = jnp.maximum(window.index, 0)
 
@@ -57,7 +80,13 @@ def gather_window_frames(
 
 class MapResult(NamedTuple):
     """The optimised map, the loss of the last iteration, and the iterations skipped because the loss or a
-    gradient was not finite (they take no step, so nothing non-finite reaches the map)."""
+    gradient was not finite (they take no step, so nothing non-finite reaches the map).
+
+    Attributes:
+      gaussians: the map after the last step, of the same capacity (pruned slots inactive).
+      loss: [] float32 mapping loss of the last iteration (on every pixel, before its step).
+      nonfinite: [] int32 iterations that took no step because the loss or a gradient was not finite.
+    """
 
     gaussians: Gaussians
     loss: jax.Array
@@ -80,7 +109,21 @@ def map_window(
     uniformly from the valid window entries; pruning at ``prune_iters`` (counted over all of them; after the
     gradient, before the step, as SplaTAM). ``first_map`` (traced bool): the frame-0 map, whose means take the
     step ``lr_means_first``. With ``mapping.reselect_every`` R > 1 the contributor slots of every window view are
-    chosen at iterations 0, R, 2R, ... and composited in between."""
+    chosen at iterations 0, R, 2R, ... and composited in between.
+
+    Args:
+      key: PRNG key of the view drawn at each iteration.
+      gaussians: the map to optimise (after densification), N slots.
+      views: the window's views (:func:`gather_window_frames`).
+      intrinsics: the camera of the views (full resolution).
+      config: the SLAM config (``mapping``, ``raster`` and ``cbknn`` are read).
+      scene_radius: the scene radius (m) pruning compares scales with, a scalar.
+      first_map: (traced bool) whether this is the first map (no keyframe stored yet), whose means take
+        ``lr_means_first``.
+
+    Returns:
+      The optimised map (N slots), the last loss and the skipped iterations, as a :class:`MapResult`.
+    """
     cfg = config.mapping
     optimizer = map_optimizer(config.mapping, jnp.where(first_map, cfg.lr_means_first, cfg.lr_means))
     params = {name: getattr(gaussians, name) for name in MAP_PARAMS}

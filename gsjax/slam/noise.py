@@ -23,8 +23,19 @@ MIN_NOISY_DEPTH_M = 1e-3  # noisy depth stays valid (> 0) where the input was va
 
 
 def add_depth_noise(frame: Frame, noise: NoiseConfig, key: jax.Array) -> Frame:
-    """``frame`` with N(0, (depth_cm / 100)^2) m added to each valid depth pixel (kept valid: at least 1 mm, or the
-    input where that is less; invalid pixels stay 0)."""
+    """``frame`` with N(0, (depth_cm / 100)^2) m added to each valid depth pixel.
+
+    A valid pixel stays valid: at least 1 mm, or the input where that is less; invalid pixels stay 0. With
+    ``noise.depth_cm`` 0 the depth is returned unchanged.
+
+    Args:
+      frame: the frame; its depth [H, W] (m; 0 marks an invalid pixel) is read.
+      noise: the noise levels (``noise.depth_cm``, the std in cm, is read; traced).
+      key: PRNG key for the noise.
+
+    Returns:
+      The frame with its depth replaced (same shape and dtype); the other fields unchanged.
+    """
     depth = frame.depth
 
     def noisy():
@@ -36,14 +47,39 @@ def add_depth_noise(frame: Frame, noise: NoiseConfig, key: jax.Array) -> Frame:
 
 
 def perturb_map(gaussians: Gaussians, noise: NoiseConfig, key: jax.Array) -> Gaussians:
-    """``gaussians`` with N(0, (map_means_cm / 100)^2) m on each mean and N(0, map_rgb^2) on each colour channel."""
+    """``gaussians`` with N(0, (map_means_cm / 100)^2) m on each mean and N(0, map_rgb^2) on each colour channel.
+
+    Every slot is perturbed (inactive slots are not rendered). With ``noise.map_means_cm`` and ``noise.map_rgb``
+    both 0 the map is returned unchanged.
+
+    Args:
+      gaussians: the map (N slots).
+      noise: the noise levels (``map_means_cm``, the means' std in cm, and ``map_rgb``, the colours' std; traced).
+      key: PRNG key for the noise.
+
+    Returns:
+      The map with its means [N, 3] and colours [N, 3] perturbed (colours not clamped); the other fields
+        unchanged.
+    """
     return jax.lax.cond((noise.map_means_cm > 0) | (noise.map_rgb > 0),
                         lambda: _perturbed(gaussians, noise.map_means_cm, noise.map_rgb, key), lambda: gaussians)
 
 
 def perturb_stored_map(gaussians: Gaussians, noise: NoiseConfig, frame: jax.Array, key: jax.Array) -> Gaussians:
-    """The stored map as frame ``frame`` starts: at ``noise.persistent_frame``, with N(0, (persistent_means_cm /
-    100)^2) m on each mean and N(0, persistent_rgb^2) on each colour channel; otherwise ``gaussians`` itself."""
+    """The stored map as frame ``frame`` starts: perturbed once, at ``noise.persistent_frame``, else unchanged.
+
+    At that frame, N(0, (persistent_means_cm / 100)^2) m is added to each mean and N(0, persistent_rgb^2) to each
+    colour channel (every slot); at any other frame, or with both levels 0, ``gaussians`` itself is returned.
+
+    Args:
+      gaussians: the stored map (N slots).
+      noise: the noise levels (``persistent_means_cm``, ``persistent_rgb`` and ``persistent_frame`` are read).
+      frame: [] int32 index of the frame that starts.
+      key: PRNG key for the noise.
+
+    Returns:
+      The map, with its means [N, 3] and colours [N, 3] perturbed at ``noise.persistent_frame``.
+    """
     now = (frame == noise.persistent_frame) & ((noise.persistent_means_cm > 0) | (noise.persistent_rgb > 0))
     return jax.lax.cond(now, lambda: _perturbed(gaussians, noise.persistent_means_cm, noise.persistent_rgb, key),
                         lambda: gaussians)

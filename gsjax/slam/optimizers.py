@@ -17,21 +17,46 @@ MAP_PARAMS = ("means", "rgb", "logit_opacities", "log_scales")  # the Gaussians'
 
 
 def finite_only_if_loss_is(loss: jax.Array, grads: _Grads) -> _Grads:
-    """``grads`` unchanged where ``loss`` is finite, else NaN everywhere: a step whose loss is not finite is skipped
-    like one whose gradient is not (``apply_if_finite`` looks at the gradient only)."""
+    """``grads`` unchanged where ``loss`` is finite, else NaN everywhere.
+
+    A step whose loss is not finite is then skipped like one whose gradient is not (``apply_if_finite`` looks at
+    the gradient only).
+
+    Args:
+      loss: [] the loss the gradients are of.
+      grads: the gradients, a pytree of arrays.
+
+    Returns:
+      ``grads``' structure and shapes, every leaf NaN when ``loss`` is not finite.
+    """
     return jax.tree.map(lambda g: jnp.where(jnp.isfinite(loss), g, jnp.nan), grads)
 
 
 def nonfinite_steps(opt_state: optax.OptState) -> jax.Array:
-    """[] int32 steps that ``apply_if_finite`` skipped so far."""
+    """The steps that ``apply_if_finite`` skipped so far.
+
+    Args:
+      opt_state: the state of an optimizer made by :func:`pose_optimizer` or :func:`map_optimizer`.
+
+    Returns:
+      [] int32 the number of skipped steps (``total_notfinite``).
+    """
     return optax.tree_utils.tree_get(opt_state, "total_notfinite")
 
 
 def pose_optimizer(tracking: TrackingConfig) -> optax.GradientTransformation:
-    """SplaTAM's per-frame Adam on the pose tangent ``{"rho": [3], "phi": [3]}``: step ``lr_trans`` on rho and
-    ``lr_rot`` on phi, each decaying exponentially to ``lr_final_ratio`` of itself over the iterations; an update
-    whose gradient is not finite is skipped and counted (``total_notfinite`` in the state). ``tracking``: the
-    iteration counts and step sizes."""
+    """SplaTAM's per-frame Adam on the pose tangent ``{"rho": [3], "phi": [3]}``.
+
+    Step ``lr_trans`` on rho and ``lr_rot`` on phi, each decaying exponentially to ``lr_final_ratio`` of itself
+    over the frame's iterations (coarse, strided and full); an update whose gradient is not finite is skipped and
+    counted (``total_notfinite`` in the state, :func:`nonfinite_steps`).
+
+    Args:
+      tracking: the tracking config (its iteration counts, ``lr_trans``, ``lr_rot`` and ``lr_final_ratio``).
+
+    Returns:
+      The optax optimizer over ``{"rho", "phi"}``.
+    """
     cfg = tracking
     total = cfg.coarse.iters + cfg.strided_iters + cfg.iters  # one Adam over every iteration of the frame
 
@@ -44,10 +69,20 @@ def pose_optimizer(tracking: TrackingConfig) -> optax.GradientTransformation:
 
 
 def map_optimizer(mapping: MappingConfig, lr_means: float | jax.Array) -> optax.GradientTransformation:
-    """SplaTAM's per-frame Adam (eps 1e-15) on the map parameters ``{name: array}`` with a step size per group
-    (``lr_means`` for the means, traced; ``mapping.lr_rgb``, ``lr_opacity``, ``lr_scale``); an update whose gradient
-    is not finite is skipped and counted (``total_notfinite``); with ``skip_step_at_prune`` the iterations in
-    ``prune_iters`` take no step (SplaTAM's quirk). ``mapping``: the iteration counts and step sizes."""
+    """SplaTAM's per-frame Adam (eps 1e-15) on the map parameters, a step size per parameter group.
+
+    The parameters are ``{name: array}`` for the names of :data:`MAP_PARAMS`. An update whose gradient is not finite
+    is skipped and counted (``total_notfinite``, :func:`nonfinite_steps`); with ``mapping.skip_step_at_prune`` the
+    iterations in ``mapping.prune_iters`` take no step (SplaTAM's quirk).
+
+    Args:
+      mapping: the mapping config (its iteration counts, ``lr_rgb``, ``lr_opacity``, ``lr_scale``,
+        ``prune_iters`` and ``skip_step_at_prune``).
+      lr_means: the step size of the means (m; may be traced).
+
+    Returns:
+      The optax optimizer over ``{"means", "rgb", "logit_opacities", "log_scales"}``.
+    """
     cfg = mapping
     rates = dict(means=lr_means, rgb=cfg.lr_rgb, logit_opacities=cfg.lr_opacity, log_scales=cfg.lr_scale)
     groups = {name: optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15), optax.scale_by_learning_rate(lr))

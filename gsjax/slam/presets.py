@@ -30,7 +30,18 @@ REDUCES_INPUT = ("cpu",)  # presets that reduce the input to about their width
 
 
 def working_downscale(name: str, width: int) -> int:
-    """The integer reduction ``gsjax run`` applies to input ``width`` px wide under preset ``name`` (1 = native)."""
+    """The integer reduction ``gsjax run`` applies to input ``width`` px wide under preset ``name`` (1 = native).
+
+    Args:
+      name: the preset's name (:data:`gsjax.names.PRESETS`).
+      width: the input images' width (px).
+
+    Returns:
+      ``max(1, round(width / PRESET_WIDTH[name]))`` for a preset that reduces its input (``cpu``), else 1.
+
+    Raises:
+      ValueError: ``name`` is not a preset.
+    """
     _check_name(name)
     return max(1, round(width / PRESET_WIDTH[name])) if name in REDUCES_INPUT else 1
 
@@ -41,12 +52,22 @@ def _check_name(name: str) -> None:
 
 
 def at_width(config: SlamConfig, width: int, preset_width: int) -> SlamConfig:
-    """``config`` with the fields that follow the width scaled from ``preset_width`` to ``width`` px: every traced
-    field in px (``mapping.overlap_margin``, ``tracking.blur.sigma_px``, ``tracking.coarse.sigma_px``,
-    ``cbknn.params.alpha`` when its shift mode makes it px) by ``width / preset_width``, and
-    ``mapping.prune_scale_ratio`` by the pixel footprint (``preset_width / width``); the very same config when the two
-    agree. Which fields those are is declared with each field (:class:`gsjax.config_fields.FieldSpec`); static ones
-    in px (``tracking.blur.radius_px``, tile and cell sizes) are shapes and stay."""
+    """``config`` with the fields that follow the width scaled from ``preset_width`` to ``width`` px.
+
+    Every traced field in px (``mapping.overlap_margin``, ``tracking.blur.sigma_px``, ``tracking.coarse.sigma_px``,
+    ``cbknn.params.alpha`` when its shift mode makes it px) is scaled by ``width / preset_width``, and
+    ``mapping.prune_scale_ratio`` by the pixel footprint (``preset_width / width``). Which fields those are is
+    declared with each field (:class:`gsjax.config_fields.FieldSpec`); static ones in px (``tracking.blur.radius_px``,
+    tile and cell sizes) are shapes and stay.
+
+    Args:
+      config: the config, its pixel-sized values given for ``preset_width``.
+      width: the images' width (px) to scale to.
+      preset_width: the width (px) the values of ``config`` are given for (:data:`PRESET_WIDTH`).
+
+    Returns:
+      The scaled config; the very same object when the two widths agree.
+    """
     return rescale(config, width / preset_width)
 
 
@@ -136,18 +157,51 @@ def _preset_values(name: str) -> SlamConfig:
 
 
 def with_image_smoothing(config: SlamConfig, blur_px: float = 1.5, radius_px: int = 6) -> SlamConfig:
-    """``config`` tracking on residuals blurred by a Gaussian of ``blur_px`` std (px at the config's working width)
-    truncated at ``radius_px`` (``tracking.blur.sigma_px``, ``tracking.blur.radius_px``): image-space smoothing, the
-    textbook alternative to CB-KNN for a wider basin."""
+    """``config`` tracking on residuals blurred by a Gaussian filter (``tracking.blur``).
+
+    Image-space smoothing, the textbook alternative to CB-KNN for a wider basin.
+
+    Args:
+      config: the config to change.
+      blur_px: the filter's std (px at the config's working width), ``tracking.blur.sigma_px``.
+      radius_px: where the filter is truncated (px), ``tracking.blur.radius_px`` (static: a shape).
+
+    Returns:
+      A copy of ``config`` with ``tracking.blur`` set to those values.
+
+    Raises:
+      ValueError: a value is out of its field's range, or the tracking config would run coarse to fine
+        (``tracking.coarse.iters`` > 0) with ``radius_px`` 0.
+    """
     tracking = dataclasses.replace(config.tracking, blur=ImageBlur(radius_px=radius_px, sigma_px=blur_px))
     return dataclasses.replace(config, tracking=tracking)
 
 
 def with_coarse_to_fine(config: SlamConfig, iters: int = 20, levels: int = 2, sigma_px: float = 1.0,
                         radius_px: int = 6) -> SlamConfig:
-    """``config`` tracking coarse to fine: ``iters`` iterations over ``levels`` blur levels (``sigma_px`` at the
-    finest, doubling per coarser level; px at the working width) first, taken from the strided iterations where
-    there are that many, so a frame runs as many iterations as before (each coarse one on every pixel)."""
+    """``config`` tracking coarse to fine (``tracking.coarse``), the coarse iterations taken from the strided ones.
+
+    The ``iters`` coarse iterations run first, each on every pixel; they replace as many strided iterations where
+    there are that many, so a frame runs as many iterations as before (``tracking.strided_iters`` is lowered by
+    ``iters``, not below 0).
+
+    Args:
+      config: the config to change (its tracking optimizer must be ``adam``).
+      iters: the coarse iterations, ``tracking.coarse.iters``.
+      levels: the blur levels they are split over, ``tracking.coarse.levels``.
+      sigma_px: the finest level's blur std (px at the working width; doubling per coarser level),
+        ``tracking.coarse.sigma_px``.
+      radius_px: the least truncation radius (px) of the levels' filter: ``tracking.blur.radius_px`` becomes the
+        larger of it and its current value.
+
+    Returns:
+      A copy of ``config`` with ``tracking.coarse``, ``tracking.blur.radius_px`` and ``tracking.strided_iters``
+        changed.
+
+    Raises:
+      ValueError: a value is out of its field's range, or ``iters`` > 0 while the tracking optimizer is not ``adam``
+        or the blur radius stays 0.
+    """
     cfg = config.tracking
     tracking = dataclasses.replace(cfg, coarse=CoarseToFine(iters=iters, levels=levels, sigma_px=sigma_px),
                                    blur=dataclasses.replace(cfg.blur, radius_px=max(cfg.blur.radius_px, radius_px)),

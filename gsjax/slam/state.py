@@ -14,20 +14,51 @@ _DEPTH_MAX = 65535
 
 
 def encode_color(color: jax.Array) -> jax.Array:
-    """Colour in [0, 1] (float) -> uint8 (clipped, rounded; exact for images read from 8-bit files)."""
+    """Colour in [0, 1] (float) -> uint8 (clipped, rounded; exact for images read from 8-bit files).
+
+    Args:
+      color: float colour in [0, 1], any shape (NaN reads as 0).
+
+    Returns:
+      uint8 ``round(255 color)`` of the same shape, clipped to [0, 255].
+    """
     return jnp.round(jnp.clip(jnp.nan_to_num(color), 0.0, 1.0) * 255.0).astype(jnp.uint8)
 
 
 def decode_color(color: jax.Array) -> jax.Array:
+    """uint8 colour (:func:`encode_color`) -> float32 in [0, 1].
+
+    Args:
+      color: uint8 colour, any shape.
+
+    Returns:
+      float32 ``color / 255`` of the same shape.
+    """
     return color.astype(jnp.float32) / 255.0
 
 
 def encode_depth(depth: jax.Array) -> jax.Array:
-    """Depth (m, float; 0 or non-finite = invalid) -> uint16 millimetres (0 = invalid; clipped at 65.535 m)."""
+    """Depth (m, float; 0 or non-finite = invalid) -> uint16 millimetres (0 = invalid; clipped at 65.535 m).
+
+    Args:
+      depth: float depth (m), any shape; 0, NaN and +inf mark invalid pixels.
+
+    Returns:
+      uint16 depth in mm (rounded) of the same shape; 0 where invalid, negative or below 0.5 mm, 65535 at
+        65.535 m or more.
+    """
     return jnp.round(jnp.clip(jnp.nan_to_num(depth / DEPTH_UNIT_M, posinf=0.0), 0, _DEPTH_MAX)).astype(jnp.uint16)
 
 
 def decode_depth(depth: jax.Array) -> jax.Array:
+    """uint16 millimetres (:func:`encode_depth`) -> float32 metres.
+
+    Args:
+      depth: uint16 depth in mm, any shape (0 = invalid).
+
+    Returns:
+      float32 depth (m) of the same shape; 0 stays 0 (invalid).
+    """
     return depth.astype(jnp.float32) * DEPTH_UNIT_M
 
 
@@ -216,7 +247,19 @@ def initial_state(
 
 
 def grow_capacity(state: SlamState, capacity: int) -> SlamState:
-    """The same state with the map's capacity raised to ``capacity`` (new slots free)."""
+    """The same state with the map's capacity raised to ``capacity`` (new slots free).
+
+    Args:
+      state: the state.
+      capacity: the new number of Gaussian slots N, at least the current one.
+
+    Returns:
+      The state with a map of ``capacity`` slots, the existing ones first and unchanged; the rest of the state
+        unchanged.
+
+    Raises:
+      ValueError: ``capacity`` is smaller than the current capacity.
+    """
     return dataclasses.replace(state, gaussians=state.gaussians.grow(capacity))
 
 

@@ -80,8 +80,17 @@ class StepOutputs(NamedTuple):
 
 
 def sanitize_frame(frame: Frame) -> Frame:
-    """The frame with every pixel whose colour or depth is not finite made invalid (depth 0, colour 0): a NaN or
-    inf from a broken sensor or file then never reaches a loss, a new Gaussian or a keyframe."""
+    """The frame with every pixel whose colour or depth is not finite made invalid (depth 0, colour 0).
+
+    A NaN or inf from a broken sensor or file then never reaches a loss, a new Gaussian or a keyframe.
+
+    Args:
+      frame: the frame; its colour [H, W, 3] and depth [H, W] are read.
+
+    Returns:
+      The frame with depth and all three colour channels set to 0 at every pixel where the depth or a colour
+        channel is not finite; the other fields unchanged.
+    """
     finite = jnp.isfinite(frame.depth) & jnp.all(jnp.isfinite(frame.color), axis=-1)
     return dataclasses.replace(frame, depth=jnp.where(finite, frame.depth, 0.0),
                                color=jnp.where(finite[..., None], frame.color, 0.0))
@@ -94,7 +103,15 @@ def _motion(state: SlamState, params: CBKNN) -> jax.Array:
 
 
 def predicted_pose(state: SlamState) -> jax.Array:
-    """The constant-velocity prediction of the next pose (the last pose before frame 2)."""
+    """The constant-velocity prediction of the next pose (the last pose before frame 2).
+
+    Args:
+      state: the state after the previous frames (its last two poses and frame index are read).
+
+    Returns:
+      [4, 4] float32 predicted world-to-camera pose of frame ``state.frame``
+        (:func:`gsjax.camera.constant_velocity`); ``state.w2c_prev1`` before frame 2.
+    """
     return jnp.where(state.frame >= 2, constant_velocity(state.w2c_prev2, state.w2c_prev1), state.w2c_prev1)
 
 
@@ -113,8 +130,8 @@ def tracking_problem(state: SlamState, color: jax.Array, depth: jax.Array, confi
 
     Returns:
       The frame's ``TrackingProblem`` (:mod:`gsjax.slam.tracking`) with ``state``'s Gaussians, ``color`` and
-      ``depth``, the start pose ``w2c_init`` [4, 4] (the constant-velocity prediction; the last pose before frame
-      2), ``intrinsics``, ``smooth`` [] bool and CB-KNN's motion ``gamma`` [] in [0, 1] (0 before frame 2).
+        ``depth``, the start pose ``w2c_init`` [4, 4] (the constant-velocity prediction; the last pose before frame
+        2), ``intrinsics``, ``smooth`` [] bool and CB-KNN's motion ``gamma`` [] in [0, 1] (0 before frame 2).
     """
     return TrackingProblem(state.gaussians, color, depth, predicted_pose(state), intrinsics,
                            jnp.asarray(config.cbknn.smooth_renders) & _is_keyframe(state, config.keyframe_every),

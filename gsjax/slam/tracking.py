@@ -39,8 +39,19 @@ from gsjax.slam.views import render_view, strided_frame, strided_setup, strided_
 
 
 class TrackResult(NamedTuple):
-    """w2c [4, 4] tracked pose; loss [] at that pose; nonfinite [] int32 skipped iterations; iterations [] int32
-    run."""
+    """One frame's tracking result (:func:`track`).
+
+    Attributes:
+      w2c: [4, 4] the tracked world-to-camera pose (m): ``adam``'s lowest-loss pose among the iterations on every
+        pixel (see ``tracking.best_pose``; the pose they started from when no loss was finite), or ``lm``'s
+        solution where its loss beats the start's (else ``w2c_init``).
+      loss: [] float32 the tracking loss there: ``adam``'s lowest (with ``best_pose`` ``post_step``, that of the
+        pose before ``w2c``'s step; inf when no iteration on every pixel had a finite loss), ``lm``'s at ``w2c``.
+      nonfinite: [] int32 ``adam``'s iterations skipped for a non-finite loss or gradient (all stages counted);
+        ``lm``: 1 when its solution or its loss was not finite (the start kept), else 0.
+      iterations: [] int32 iterations run: ``adam``'s over the coarse, strided and full stages (fewer when
+        ``tracking.stop.window`` stops early), ``lm``'s steps on the strided grid and on every pixel.
+    """
 
     w2c: jax.Array
     loss: jax.Array
@@ -49,10 +60,19 @@ class TrackResult(NamedTuple):
 
 
 class TrackingProblem(NamedTuple):
-    """One frame's tracking problem, the map held fixed: the ``gaussians``, the observed ``color`` [H, W, 3] and
-    ``depth`` [H, W], the start pose ``w2c_init`` [4, 4] (in SLAM the constant-velocity prediction), ``intrinsics``,
-    ``smooth`` [] bool (render with CB-KNN: a keyframe in ``paper`` mode) and CB-KNN's motion ``gamma`` []. SLAM's
-    step builds it with :func:`gsjax.slam.system.tracking_problem`."""
+    """One frame's tracking problem, the map held fixed.
+
+    SLAM's step builds it with :func:`gsjax.slam.system.tracking_problem`.
+
+    Attributes:
+      gaussians: the map (no gradient reaches it).
+      color: [H, W, 3] the observed colour in [0, 1].
+      depth: [H, W] the observed depth (m; 0 marks an invalid pixel).
+      w2c_init: [4, 4] the start pose, world-to-camera (m); in SLAM the constant-velocity prediction.
+      intrinsics: the camera at the frame's resolution.
+      smooth: [] bool, render with CB-KNN (a keyframe in ``paper`` mode).
+      gamma: [] CB-KNN's inter-frame motion in [0, 1] (its adaptive K).
+    """
 
     gaussians: Gaussians
     color: jax.Array
@@ -64,11 +84,18 @@ class TrackingProblem(NamedTuple):
 
 
 class TrackingObjective(NamedTuple):
-    """The tracker's objective around ``w2c_init``: ``view_at(delta, selection=None)`` renders at ``exp(delta) @
-    w2c_init``, ``loss(delta, selection=None)`` is the tracking loss there (delta [6] = (rho m, phi rad)),
-    ``lambda_color`` its colour weight, and ``select(delta)`` chooses every pixel's contributor slots at that pose
-    (:func:`gsjax.raster.select_slots`, the full image's): given to ``view_at``/``loss``, those slots are composited
-    instead of being chosen at the rendered pose (``tracking.reselect_every``)."""
+    """The tracker's objective around ``w2c_init`` (:func:`tracking_objective`), as functions of the pose update.
+
+    delta [6] = (rho m, phi rad) is the left perturbation: the pose is ``exp(delta) @ w2c_init``.
+
+    Attributes:
+      view_at: ``view_at(delta, selection=None)`` renders (:class:`gsjax.slam.views.RenderedView`) at that pose.
+      loss: ``loss(delta, selection=None)``, the tracking loss [] there (:func:`gsjax.slam.losses.tracking_loss`).
+      lambda_color: the loss's colour weight (a float or a [] array).
+      select: ``select(delta)`` chooses every pixel's contributor slots at that pose
+        (:func:`gsjax.raster.select_slots`, the full image's): given to ``view_at``/``loss``, those slots are
+        composited instead of being chosen at the rendered pose (``tracking.reselect_every``).
+    """
 
     view_at: Callable
     loss: Callable
@@ -77,8 +104,19 @@ class TrackingObjective(NamedTuple):
 
 
 def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> TrackingObjective:
-    """What the tracker minimises for ``problem``; its ``smooth`` selects CB-KNN renders (keyframes in ``paper``
-    mode, with the keyframe colour weight)."""
+    """What the tracker minimises for ``problem``: its renders and loss around ``problem.w2c_init``.
+
+    The map is held fixed (no gradient, ``raster.pose_only``). In ``paper`` mode with ``cbknn.track_keyframes``,
+    where ``problem.smooth`` is true (a keyframe), the renders are CB-KNN's and the colour weight is
+    ``cbknn.lambda_color_keyframe``; elsewhere the canonical render and ``tracking.lambda_color``.
+
+    Args:
+      problem: the frame's tracking problem.
+      config: the SLAM config (its ``tracking``, ``raster`` and ``cbknn`` are read).
+
+    Returns:
+      the objective: renders, loss, colour weight and slot selection as functions of the pose update.
+    """
     cfg = config.tracking
     gaussians, color, depth, w2c_init, intrinsics, smooth, gamma = problem
     gaussians = jax.lax.stop_gradient(gaussians)
@@ -102,7 +140,18 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
 
 
 def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
-    """Track one frame from ``problem.w2c_init``, minimising :func:`tracking_objective`."""
+    """Track one frame from ``problem.w2c_init``, minimising :func:`tracking_objective`.
+
+    ``tracking.optimizer`` picks Adam (after the coarse levels and the strided grids when configured) or
+    Levenberg-Marquardt (after the strided grids when configured; rendered on the XLA path for its forward mode).
+
+    Args:
+      problem: the frame's tracking problem.
+      config: the SLAM config (its ``tracking``, ``raster`` and ``cbknn`` are read).
+
+    Returns:
+      the tracked pose, its loss, the skipped iterations and the iterations run.
+    """
     if config.tracking.optimizer == "lm":
         # LM's Jacobian is forward mode, which the Pallas compositing (a custom_vjp) does not have.
         config = dataclasses.replace(config, raster=config.raster.for_forward_mode())
@@ -117,9 +166,19 @@ def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
 
 
 def coarse_losses(problem: TrackingProblem, config: SlamConfig) -> list[Callable]:
-    """The losses (delta [6], selection=None -> []) of coarse-to-fine tracking's levels, coarsest first: the tracking
-    objective with the residuals blurred at ``coarse.sigma_px`` x 2^(levels - 1 - level) px; empty without
-    ``coarse.iters``."""
+    """The losses of coarse-to-fine tracking's levels, coarsest first.
+
+    Each is the tracking objective's loss with the residuals blurred at ``coarse.sigma_px`` x 2^(levels - 1 -
+    level) px (``tracking.blur.radius_px`` truncates the filter).
+
+    Args:
+      problem: the frame's tracking problem.
+      config: the SLAM config (its ``tracking.coarse`` sets the levels).
+
+    Returns:
+      ``tracking.coarse.levels`` functions ``loss(delta, selection=None)`` -> [] (delta [6] as
+        :class:`TrackingObjective`), coarsest first; empty when ``tracking.coarse.iters`` is 0.
+    """
     cfg = config.tracking
     if not cfg.coarse.iters:
         return []
@@ -135,10 +194,21 @@ def coarse_losses(problem: TrackingProblem, config: SlamConfig) -> list[Callable
 def strided_problem(
     problem: TrackingProblem, config: SlamConfig
 ) -> Callable[[int | jax.Array], tuple[TrackingObjective, jax.Array, jax.Array]]:
-    """``on_grid(phase)`` -> (the :class:`TrackingObjective` on every other pixel, (row, col) = (phase // 2,
-    phase % 2), with its loss scaled by the pixel ratio so its gradient has the full loss's scale; that colour
-    [H // 2, W // 2, 3]; that depth). The render there is the full render's pixels (:func:`strided_setup`); its
-    ``view_at``/``loss`` take the full image's selection (``select``) and composite its slots at the grid's pixels."""
+    """The tracking problem on each strided grid: every other pixel from (row, col) = (phase // 2, phase % 2).
+
+    The render there is the full render's pixels (:func:`gsjax.slam.views.strided_setup`); the objective's loss is
+    scaled by the pixel ratio, (H W) / ((H // 2) (W // 2)), so its gradient has the full loss's scale. Its
+    ``view_at``/``loss`` take the full image's selection (``select`` is the full image's) and composite its slots
+    at the grid's pixels.
+
+    Args:
+      problem: the frame's tracking problem on every pixel.
+      config: the SLAM config for the full image.
+
+    Returns:
+      ``on_grid(phase)`` for the grid ``phase`` 0-3 (may be traced), which gives the grid's
+        :class:`TrackingObjective`, its colour [H // 2, W // 2, 3] and its depth [H // 2, W // 2].
+    """
     intrinsics = problem.intrinsics
     full = tracking_objective(problem, config)
     strided_config = strided_setup(config, intrinsics)
@@ -161,9 +231,22 @@ def strided_problem(
 
 
 class AdamCarry(NamedTuple):
-    """The Adam tracker's loop state: iteration ``it``, the pose update ``delta`` ({rho, phi} [3] each), the
-    optimiser's state, the best finite-loss update and its loss, the iteration and loss of the last progress (for
-    ``stop.window``), and the contributor selection in use (None when every render chooses its own)."""
+    """The Adam tracker's loop state, carried through the coarse, strided and full stages.
+
+    The best update and the progress are reset at each stage: only the stage on every pixel competes for the
+    returned pose.
+
+    Attributes:
+      it: [] int32 the iteration, counted over all stages.
+      delta: the pose update ``{"rho": [3], "phi": [3]}`` float32 (m, rad), the left perturbation of ``w2c_init``.
+      opt_state: the optimiser's state (:func:`gsjax.slam.optimizers.pose_optimizer`; it counts the skipped steps).
+      best_delta: the update with the stage's lowest finite loss (as ``delta``).
+      best_loss: [] float32 that loss (inf until a finite one).
+      progress_at: [] int32 the iteration of the last progress (for ``tracking.stop.window``).
+      progress_loss: [] float32 the loss at the last progress (inf before the first).
+      selection: the :class:`gsjax.raster.SlotSelection` in use (chosen every ``tracking.reselect_every``
+        iterations), or None when every render chooses its own.
+    """
 
     it: jax.Array
     delta: dict
@@ -269,9 +352,16 @@ def _track_lm(full, loss_fn, w2c_init, cfg: TrackingConfig, lambda_color, stride
 
 
 class GuardedTrack(NamedTuple):
-    """:class:`TrackResult` fields (``iterations`` over both attempts), plus ``retried`` [] bool (the first attempt
-    diverged, the frame was tracked again) and ``diverged`` [] bool (no attempt stayed within the bound: ``w2c`` is
-    the prediction)."""
+    """A frame tracked with the divergence guard (:func:`track_guarded`): :class:`TrackResult`'s fields and two flags.
+
+    Attributes:
+      w2c: [4, 4] the kept attempt's pose (m), or ``w2c_init`` (the prediction) when ``diverged``.
+      loss: [] float32 the kept attempt's loss (the first attempt's when ``diverged``).
+      nonfinite: [] int32 skipped iterations, over both attempts when the frame was tracked again.
+      retried: [] bool, the first attempt diverged (``adam`` then tracks the frame again; ``lm`` does not).
+      diverged: [] bool, the first attempt diverged and no attempt stayed within the bound.
+      iterations: [] int32 iterations run, over both attempts when the frame was tracked again.
+    """
 
     w2c: jax.Array
     loss: jax.Array
@@ -282,8 +372,17 @@ class GuardedTrack(NamedTuple):
 
 
 def within_step_bound(w2c: jax.Array, w2c_init: jax.Array, tracking: TrackingConfig) -> jax.Array:
-    """[] bool: ``w2c`` lies within the physical bound of one frame's motion from ``w2c_init`` (camera centre
-    ``tracking.guard.max_step_m``, rotation ``tracking.guard.max_step_deg``)."""
+    """Whether ``w2c`` lies within the physical bound of one frame's motion from ``w2c_init``.
+
+    Args:
+      w2c: [4, 4] the tracked world-to-camera pose (m).
+      w2c_init: [4, 4] the pose it started from (m), the constant-velocity prediction.
+      tracking: the tracking config (its ``guard.max_step_m`` and ``guard.max_step_deg`` are read).
+
+    Returns:
+      [] bool, ``w2c`` is finite, its camera centre at most ``guard.max_step_m`` (m) from ``w2c_init``'s and its
+        rotation at most ``guard.max_step_deg`` (deg) from ``w2c_init``'s.
+    """
     cfg = tracking
     shift = jnp.linalg.norm(camera_center(w2c) - camera_center(w2c_init))
     turn = rotation_angle(w2c[:3, :3] @ w2c_init[:3, :3].T)
@@ -299,10 +398,23 @@ def _diverged(result: TrackResult, w2c_init, previous_loss, tracking: TrackingCo
 def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: jax.Array) -> GuardedTrack:
     """:func:`track` from the constant-velocity prediction ``problem.w2c_init``, guarded against divergence.
 
-    ``previous_loss`` []: the previous tracked frame's loss (0: none, no loss-jump test). Both attempts are passes
-    of one ``while_loop`` over a single traced tracker (the second with its steps times ``guard.retry_lr_scale``), so
-    the compiled program holds the tracker once and the retry costs nothing when no frame diverges (also under
-    ``vmap``, where a ``cond`` would run both sides).
+    An attempt with a finite loss has diverged when its pose is beyond :func:`within_step_bound` or its loss exceeds
+    ``guard.loss_jump`` times ``previous_loss``. With ``adam`` a diverged frame is tracked once more with the step
+    sizes times ``guard.retry_lr_scale``; the second attempt is kept when it is within the bound and the first is
+    not, or both are and its loss is lower. When neither is within the bound the pose is the prediction.
+
+    Both attempts are passes of one ``while_loop`` over a single traced tracker, so the compiled program holds the
+    tracker once and the retry costs nothing when no frame diverges (also under ``vmap``, where a ``cond`` would
+    run both sides).
+
+    Args:
+      problem: the frame's tracking problem (``w2c_init``: the constant-velocity prediction).
+      config: the SLAM config (its ``tracking.guard`` sets the guard).
+      previous_loss: [] the previous tracked frame's loss (0: none, no loss-jump test).
+
+    Returns:
+      the kept pose, its loss, the skipped and run iterations of both attempts, and whether the frame was retried
+        and diverged.
     """
     cfg = config.tracking
     w2c_init = problem.w2c_init
