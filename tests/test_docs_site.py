@@ -52,7 +52,8 @@ def test_a_page_of_the_site_loads_cleanly(served, page_path, expect):
         assert not log.errors and not log.exceptions and not log.outside, (log.errors, log.exceptions, log.outside)
         if page_path.startswith("tutorials/"):
             figures = page.locator("img[src^='data:image/png']")
-            assert figures.count() >= 2
+            assert figures.count() >= 2, ("no figures in the tutorial: the site was built without running the "
+                                          "tutorials (GSJAX_DOCS_EXECUTE=false?); `make docs` runs them")
             assert all(figures.nth(i).evaluate("img => img.naturalWidth > 0") for i in range(figures.count()))
     finally:
         page.context.close()
