@@ -35,20 +35,9 @@ def write_realsense(sequence: Sequence, path: str | Path, *, depth_units: float 
     if path.exists():
         raise FileExistsError(f"{path} exists; not overwriting it")
     k = sequence.intrinsics
-    device = rs.software_device()
-    depth_sensor, color_sensor = device.add_sensor("Depth"), device.add_sensor("Color")
-    depth_profile = depth_sensor.add_video_stream(video_stream(rs, k, rs.stream.depth, rs.format.z16, 2, 0))
-    color_profile = color_sensor.add_video_stream(video_stream(rs, k, rs.stream.color, rs.format.rgb8, 3, 1))
-    depth_sensor.add_read_only_option(rs.option.depth_units, depth_units)
     identity = rs.extrinsics()
     identity.rotation, identity.translation = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0], [0.0, 0.0, 0.0]
-    depth_profile.register_extrinsics_to(color_profile, identity)
-    device.create_matcher(rs.matchers.default)
-    recorder = rs.recorder(str(path), device)
-    recorded = recorder.query_sensors()
-    for sensor, profile in zip(recorded, (depth_profile, color_profile)):
-        sensor.open(profile)
-        sensor.start(lambda frame: None)
+    recording = SoftwareRecording(rs, path, k, k, identity, depth_units)
     times = sequence.timestamps
     start = time.perf_counter()
     try:
@@ -58,21 +47,67 @@ def write_realsense(sequence: Sequence, path: str | Path, *, depth_units: float 
             delay = float(times[i] - times[0]) - (time.perf_counter() - start)
             if delay > 0:
                 time.sleep(delay)  # at the frame rate: the recorder stamps by arrival
-            for sensor, profile, pixels, bpp in ((depth_sensor, depth_profile, raw, 2),
-                                                 (color_sensor, color_profile, to_uint8(frame.color), 3)):
-                video = rs.software_video_frame()
-                video.pixels, video.stride, video.bpp = np.ascontiguousarray(pixels), k.width * bpp, bpp
-                video.timestamp, video.frame_number = 1e3 * float(times[i]), i
-                video.domain, video.profile = rs.timestamp_domain.hardware_clock, profile.as_video_stream_profile()
-                sensor.on_video_frame(video)
+            recording.push(i, 1e3 * float(times[i]), raw, to_uint8(frame.color))
     finally:
-        for sensor in recorded:
-            sensor.stop()
-            sensor.close()
-        del recorder  # closes the file
+        recording.close()
     from gsjax.data.realsense import recorded_color_stamps
 
     return recorded_color_stamps(path)
+
+
+class SoftwareRecording:
+    """The SDK's recorder over a software device with a depth and a colour sensor: frames pushed to it are written
+    to ``path`` as a RealSense recording (what ``realsense-viewer`` writes).
+
+    Args:
+      rs: the pyrealsense2 module.
+      path: the recording to write (``.db3``).
+      depth_camera: the depth sensor's :class:`gsjax.camera.Intrinsics` (its size is the depth images').
+      color_camera: the colour sensor's.
+      depth_to_color (rs.extrinsics): the depth camera's pose in the colour camera's frame.
+      depth_units: metres per raw depth unit, recorded as the depth sensor's option.
+    """
+
+    def __init__(self, rs, path: str | Path, depth_camera, color_camera, depth_to_color, depth_units: float):
+        self._rs = rs
+        device = rs.software_device()
+        self._sensors = (device.add_sensor("Depth"), device.add_sensor("Color"))
+        self._profiles = (self._sensors[0].add_video_stream(video_stream(rs, depth_camera, rs.stream.depth,
+                                                                         rs.format.z16, 2, 0)),
+                          self._sensors[1].add_video_stream(video_stream(rs, color_camera, rs.stream.color,
+                                                                         rs.format.rgb8, 3, 1)))
+        self._sensors[0].add_read_only_option(rs.option.depth_units, depth_units)
+        self._profiles[0].register_extrinsics_to(self._profiles[1], depth_to_color)
+        device.create_matcher(rs.matchers.default)
+        self._recorder = rs.recorder(str(path), device)
+        self._recorded = self._recorder.query_sensors()
+        for sensor, profile in zip(self._recorded, self._profiles):
+            sensor.open(profile)
+            sensor.start(lambda frame: None)
+
+    def push(self, number: int, stamp_ms: float, depth: np.ndarray, color: np.ndarray) -> None:
+        """Hand one frame to both sensors.
+
+        Args:
+          number: the frame number.
+          stamp_ms: its hardware-clock timestamp (ms).
+          depth: [H, W] uint16 raw depth of the depth camera's size.
+          color: [H, W, 3] uint8 RGB of the colour camera's size.
+        """
+        rs = self._rs
+        for sensor, profile, pixels, bpp in zip(self._sensors, self._profiles, (depth, color), (2, 3)):
+            video = rs.software_video_frame()
+            video.pixels, video.stride, video.bpp = np.ascontiguousarray(pixels), pixels.shape[1] * bpp, bpp
+            video.timestamp, video.frame_number = stamp_ms, number
+            video.domain, video.profile = rs.timestamp_domain.hardware_clock, profile.as_video_stream_profile()
+            sensor.on_video_frame(video)
+
+    def close(self) -> None:
+        """Stop the sensors and close the file."""
+        for sensor in self._recorded:
+            sensor.stop()
+            sensor.close()
+        del self._recorder
 
 
 def video_stream(rs, k, kind, fmt, bpp: int, uid: int):

@@ -63,32 +63,19 @@ def test_slam_on_a_recording_gives_the_bag_s_trajectory(recording, tmp_path, cap
 
 
 def record_two_cameras(path, depth_size, depth_focal, color_size, color_focal, frames=3):
-    """A software device with depth and colour of different cameras and a depth -> colour offset, recorded."""
+    """Depth and colour of different cameras, with a depth -> colour offset, recorded by the SDK's recorder."""
     from gsjax.camera import make_intrinsics
-    from gsjax.data.realsense_write import video_stream
+    from gsjax.data.realsense_write import SoftwareRecording
 
-    def stream(kind, fmt, bpp, uid, size, focal):
-        k = make_intrinsics(focal, focal, (size[0] - 1) / 2, (size[1] - 1) / 2, size[1], size[0])
-        return video_stream(rs, k, kind, fmt, bpp, uid)
+    def camera(size, focal):
+        return make_intrinsics(focal, focal, (size[0] - 1) / 2, (size[1] - 1) / 2, size[1], size[0])
 
-    device = rs.software_device()
-    depth_sensor, color_sensor = device.add_sensor("Depth"), device.add_sensor("Color")
-    depth_profile = depth_sensor.add_video_stream(stream(rs.stream.depth, rs.format.z16, 2, 0, depth_size,
-                                                         depth_focal))
-    color_profile = color_sensor.add_video_stream(stream(rs.stream.color, rs.format.rgb8, 3, 1, color_size,
-                                                         color_focal))
-    depth_sensor.add_read_only_option(rs.option.depth_units, 0.001)
     offset = rs.extrinsics()
     angle = np.radians(2.0)  # a small turn about y and a baseline, as between a D400's depth and colour cameras
     offset.rotation = [np.cos(angle), 0.0, -np.sin(angle), 0.0, 1.0, 0.0, np.sin(angle), 0.0, np.cos(angle)]
     offset.translation = [0.03, -0.01, 0.002]
-    depth_profile.register_extrinsics_to(color_profile, offset)
-    device.create_matcher(rs.matchers.default)
-    recorder = rs.recorder(str(path), device)
-    sensors = recorder.query_sensors()
-    for sensor, profile in zip(sensors, (depth_profile, color_profile)):
-        sensor.open(profile)
-        sensor.start(lambda frame: None)
+    recording = SoftwareRecording(rs, path, camera(depth_size, depth_focal), camera(color_size, color_focal), offset,
+                                  0.001)
     rows, cols = np.mgrid[0:depth_size[1], 0:depth_size[0]]
     rng = np.random.default_rng(0)
     for n in range(frames):
@@ -96,18 +83,9 @@ def record_two_cameras(path, depth_size, depth_focal, color_size, color_focal, f
         depth[5:9, 5:9] = 0  # a hole
         depth[20:26, 30:40] = 600  # a nearer box: occlusion in the colour view
         color = rng.integers(0, 255, (color_size[1], color_size[0], 3), dtype=np.uint8)
-        for sensor, profile, pixels, bpp in ((depth_sensor, depth_profile, depth, 2),
-                                             (color_sensor, color_profile, color, 3)):
-            frame = rs.software_video_frame()
-            frame.pixels, frame.stride, frame.bpp = pixels, pixels.shape[1] * bpp, bpp
-            frame.timestamp, frame.frame_number = n * 33.3, n
-            frame.domain, frame.profile = rs.timestamp_domain.hardware_clock, profile.as_video_stream_profile()
-            sensor.on_video_frame(frame)
+        recording.push(n, n * 33.3, depth, color)
         time.sleep(0.034)
-    for sensor in sensors:
-        sensor.stop()
-        sensor.close()
-    del recorder
+    recording.close()
     return path
 
 
