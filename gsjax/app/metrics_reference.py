@@ -73,13 +73,11 @@ def _schema_of(annotation: Any) -> dict[str, Any]:
     if annotation is Any:
         return {}
     if origin is list:
-        return {"type": "array", "items": _schema_of(args[0])} if args else {"type": "array"}
+        return {"type": "array", "items": _schema_of(args[0])}
     if origin is dict:
-        return {"type": "object", "additionalProperties": _schema_of(args[1])} if args else {"type": "object"}
-    if annotation is list:
+        return {"type": "object", "additionalProperties": _schema_of(args[1])}
+    if annotation is list:  # a list of anything (TrajectoryMetrics.per_frame's series)
         return {"type": "array"}
-    if annotation is dict:
-        return {"type": "object"}
     raise TypeError(f"no JSON Schema for the annotation {annotation!r}")
 
 
@@ -159,22 +157,19 @@ def metrics_reference() -> str:
     """The reference as Markdown: one table per record, the keys in the order ``metrics.json`` writes them."""
     schema = metrics_schema()
     lines = [HEADER]
-    for name, record in [("RunMetrics", schema), *schema["$defs"].items()]:
-        summary = "The top-level object." if name == "RunMetrics" else _markdown(_summary(_record(name)))
-        lines += [f"## {name}", "", summary, "", "| key | type | meaning |", "|---|---|---|"]
-        docs = field_docs(_record(name))
+    for cls in RECORDS:
+        record = schema if cls is RunMetrics else schema["$defs"][cls.__name__]
+        summary = "The top-level object." if cls is RunMetrics else _markdown(_summary(cls))
+        lines += [f"## {cls.__name__}", "", summary, "", "| key | type | meaning |", "|---|---|---|"]
+        docs = field_docs(cls)
         for key, prop in record["properties"].items():
             lines.append(f"| `{key}` | {_type_text(prop)} | {_markdown(docs[key])} |")
         lines.append("")
-    per_frame = schema["properties"]["per_frame"]["properties"]
+    series = _series_docs()
     lines += ["## per_frame", "", "`per_frame`'s series, each an array with a value per frame (`null` where not "
               "finite), from `gsjax.slam.system.StepOutputs`:", "", "| key | meaning |", "|---|---|"]
-    lines += [f"| `{key}` | {_markdown(_series_docs()[key])} |" for key in per_frame]
+    lines += [f"| `{key}` | {_markdown(series[key])} |" for key in schema["properties"]["per_frame"]["properties"]]
     return "\n".join(lines) + "\n"
-
-
-def _record(name: str) -> type:
-    return next(cls for cls in RECORDS if cls.__name__ == name)
 
 
 def write_metrics_reference(directory: str | Path) -> tuple[Path, Path]:
