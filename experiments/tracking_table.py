@@ -159,9 +159,6 @@ def update_docs(table: str, page: Path = DOCS_PAGE) -> None:
     print(f"updated {page}")
 
 
-update_readme = update_docs  # the name from when the table lived in the README
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, required=True, help="run directories (outside git; reused)")
