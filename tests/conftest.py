@@ -6,6 +6,7 @@ import pytest
 from gsjax.app.compilation_cache import enable_compilation_cache
 
 enable_compilation_cache()
+pytest_plugins = ["tests.support.compile_log"]  # GSJAX_COMPILE_LOG=DIR: every compilation, by test
 # Start the backend now: an in-process `gsjax sweep` would otherwise choose this process's CPU device count.
 jax.devices()
 
