@@ -14,6 +14,8 @@ import re
 from collections.abc import Iterator, Mapping
 from typing import Any, TypeVar
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from gsjax.checks import is_checkable
@@ -105,6 +107,22 @@ def param(default: _T, unit: str, *, static: bool = False, low: float | None = N
     return dataclasses.field(default=default, metadata=dict(static=static, spec=spec))
 
 
+def derived(default: Any = None) -> Any:
+    """A static field computed from the others (e.g. ``SlamConfig.caps`` from the iteration counts): part of the tree
+    structure, but not a setting: :func:`walk`, :func:`rescale`, the overrides and ``config.json`` leave it out."""
+    return dataclasses.field(default=default, metadata=dict(static=True, derived=True))
+
+
+def is_derived(field: dataclasses.Field) -> bool:
+    """Whether ``field`` is :func:`derived`."""
+    return bool(field.metadata.get("derived"))
+
+
+def settings_fields(config: Any) -> list[dataclasses.Field]:
+    """The fields of ``config`` a user sets (every field but the :func:`derived` ones)."""
+    return [f for f in dataclasses.fields(config) if not is_derived(f)]
+
+
 def required(unit: str, **declaration: Any) -> Any:
     """A field without a default (e.g. a camera's focal length), declared as :func:`param` declares one."""
     return param(dataclasses.MISSING, unit, **declaration)
@@ -143,7 +161,12 @@ def _valid(value: Any, spec: FieldSpec, kind: str) -> bool:
         return "None" in kind  # an optional field (``float | None``) left unset
     kind = kind.split(" |")[0]
     if spec.choices is not None:
-        return isinstance(value, str) and value in spec.choices
+        if isinstance(value, str) or spec.static:
+            return isinstance(value, str) and value in spec.choices
+        if not is_checkable(value):
+            return True  # a traced choice's index: checked when built
+        index = np.asarray(value)
+        return np.issubdtype(index.dtype, np.integer) and bool(np.all((index >= 0) & (index < len(spec.choices))))
     if kind == "tuple":
         return isinstance(value, tuple) and all(_is_int(v) and _within(float(v), spec) for v in value)
     if spec.static or isinstance(value, (bool, int, float, str)):
@@ -198,8 +221,9 @@ class FieldEntry:
 
 
 def walk(config: Any, prefix: str = "") -> Iterator[FieldEntry]:
-    """Every leaf field of a nested config, depth first in declaration order (sections are descended into)."""
-    for field in dataclasses.fields(config):
+    """Every leaf field of a nested config, depth first in declaration order (sections are descended into; derived
+    fields left out)."""
+    for field in settings_fields(config):
         value = getattr(config, field.name)
         path = f"{prefix}{field.name}"
         if dataclasses.is_dataclass(value) and spec_of(field) is None:
@@ -214,7 +238,7 @@ def rescale(config: _T, ratio: float) -> _T:
     if ratio == 1:
         return config
     changes: dict[str, Any] = {}
-    for field in dataclasses.fields(config):  # type: ignore[arg-type]
+    for field in settings_fields(config):
         value = getattr(config, field.name)
         spec = spec_of(field)
         if spec is None and dataclasses.is_dataclass(value):
@@ -258,3 +282,71 @@ def field_docs(cls: type) -> dict[str, str]:
         else:
             break
     return docs
+
+
+def choice_is(value: Any, name: str, choices: tuple) -> bool | jax.Array:
+    """Whether a choice field's ``value`` is ``name``: a bool for a name given as text, a bool array for a traced
+    choice (its index into ``choices``, as :func:`register_config` flattens it).
+
+    Args:
+      value: the field's value: one of ``choices``, or an int index into them (concrete or traced, any shape).
+      name: the choice to test for, one of ``choices``.
+      choices: the field's choices (:attr:`FieldSpec.choices`).
+
+    Returns:
+      ``value == name`` as a Python bool, or as a bool array of ``value``'s shape.
+    """
+    if isinstance(value, str):
+        return value == name
+    return jnp.asarray(value) == choices.index(name)
+
+
+def _traced_choices(cls: type) -> dict[str, tuple]:
+    return {f.name: spec.choices for f in dataclasses.fields(cls)
+            if (spec := spec_of(f)) is not None and spec.choices is not None and not spec.static}
+
+
+def _encode_choice(value: Any, choices: tuple | None) -> Any:
+    return np.int32(choices.index(value)) if choices is not None and isinstance(value, str) else value
+
+
+def _decode_choice(value: Any, choices: tuple | None) -> Any:
+    if choices is None or isinstance(value, str) or not is_checkable(value) or np.ndim(value) != 0:
+        return value
+    index = int(np.asarray(value))
+    return choices[index] if 0 <= index < len(choices) else value  # out of range: check_fields names it
+
+
+def register_config(cls: type[_T]) -> type[_T]:
+    """``jax.tree_util.register_dataclass`` for a config class whose traced choice fields (declared with ``choices``
+    and not ``static``, e.g. CB-KNN's mode) are flattened to their index, an int32 leaf, so that configs differing in
+    that choice share one compiled program. A concrete index unflattens back to its name; a traced or stacked one
+    stays an index (test it with :func:`choice_is`). Static fields are part of the tree structure, as with
+    ``register_dataclass``.
+
+    Args:
+      cls: a frozen dataclass of :func:`param` fields.
+
+    Returns:
+      ``cls``, registered as a pytree node.
+    """
+    fields = dataclasses.fields(cls)  # type: ignore[arg-type]
+    data = [f.name for f in fields if not f.metadata.get("static")]
+    meta = [f.name for f in fields if f.metadata.get("static")]
+    choices = _traced_choices(cls)
+
+    def flatten_with_keys(obj):
+        children = [(jax.tree_util.GetAttrKey(n), _encode_choice(getattr(obj, n), choices.get(n))) for n in data]
+        return children, tuple(getattr(obj, n) for n in meta)
+
+    def flatten(obj):
+        children, aux = flatten_with_keys(obj)
+        return [child for _, child in children], aux
+
+    def unflatten(aux, children):
+        kwargs = dict(zip(meta, aux))
+        kwargs.update({n: _decode_choice(c, choices.get(n)) for n, c in zip(data, children)})
+        return cls(**kwargs)
+
+    jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten, flatten)
+    return cls

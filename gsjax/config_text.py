@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from gsjax.config_fields import kind_of, spec_of
+from gsjax.config_fields import kind_of, settings_fields, spec_of
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.tracking_config import RENAMED
 
@@ -74,7 +74,7 @@ def apply_overrides(config: _Config, overrides: dict[str, str]) -> _Config:
 def _set_path(obj, parts: list[str], text: str, path: str):
     if not dataclasses.is_dataclass(obj):
         raise ValueError(f"--{path}: {parts[0]!r} is not a config section")
-    fields = {f.name: f for f in dataclasses.fields(obj)}
+    fields = {f.name: f for f in settings_fields(obj)}
     if parts[0] not in fields:
         raise ValueError(f"--{path}: unknown field {parts[0]!r} (fields: {', '.join(sorted(fields))})")
     field = fields[parts[0]]
@@ -94,7 +94,7 @@ def _set_path(obj, parts: list[str], text: str, path: str):
 def config_to_dict(config: DataclassInstance) -> dict[str, Any]:
     """A JSON-friendly nested dict of a config (for ``config.json``)."""
     out: dict[str, Any] = {}
-    for field in dataclasses.fields(config):
+    for field in settings_fields(config):
         value = getattr(config, field.name)
         if dataclasses.is_dataclass(value):
             out[field.name] = config_to_dict(value)
@@ -165,7 +165,7 @@ def canonical_config_dict(data: dict[str, Any] | None) -> dict[str, Any] | None:
 
 def _from_dict(data: dict[str, Any], base: DataclassInstance) -> DataclassInstance:
     kwargs: dict[str, Any] = {}
-    hints = typing.get_type_hints(type(base))
+    hints = {f.name for f in settings_fields(base)}
     for key, value in data.items():
         if key not in hints:
             raise ValueError(f"config: unknown field {key!r}")

@@ -33,6 +33,9 @@ def enable_compilation_cache() -> Path:
     # evaluation render (0.16 s) and the many small programs of its first calls.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    from gsjax.app.compile_log import install_from_env
+
+    install_from_env()  # GSJAX_COMPILE_LOG: a developer's log of every compilation
     global _exported
     if _exported is None:
         from gsjax.app.programs import ExportedPrograms

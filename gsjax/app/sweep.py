@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import functools
 import io
 import itertools
 import math
@@ -47,6 +48,7 @@ from gsjax.eval.run_metrics import RunMetrics
 from gsjax.io.atomic import atomic_write_bytes, atomic_write_json, remove_stale_temporaries
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import Group, batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
+from gsjax.slam.loops import LoopCaps
 from gsjax.slam.state import initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs
 
@@ -85,7 +87,9 @@ class SweepPoint:
 
 def expand_grid(base: SlamConfig, axes: list[GridAxis], seeds: list[int]) -> list[SweepPoint]:
     """The product of the axes (first axis slowest) times the seeds, each value applied to ``base`` as an override
-    (so read and validated as ``gsjax run --FIELD V`` would be)."""
+    (so read and validated as ``gsjax run --FIELD V`` would be). Every config is given the same loop caps (those
+    that hold every config's iteration counts: :meth:`gsjax.slam.config.SlamConfig.with_caps`), so that iteration
+    counts, like every other traced field, share one program."""
     fields = [axis.field for axis in axes]
     if len(set(fields)) != len(fields):
         raise ValueError("--grid: a field appears in more than one axis")
@@ -98,7 +102,13 @@ def expand_grid(base: SlamConfig, axes: list[GridAxis], seeds: list[int]) -> lis
             raise ValueError(f"--grid: {err}") from None
         for seed in seeds:  # seeds innermost: a config's seeds are adjacent rows
             points.append(SweepPoint(len(points), values, seed, config))
-    return points
+    caps = common_caps([p.config for p in points])
+    return [dataclasses.replace(p, config=p.config.with_caps(caps)) for p in points]
+
+
+def common_caps(configs: list[SlamConfig]) -> LoopCaps:
+    """The loop caps that hold every one of ``configs``' iteration counts (the union of their caps)."""
+    return functools.reduce(LoopCaps.union, [c.caps for c in configs if c.caps is not None], LoopCaps())
 
 
 def group_by_program(points: list[SweepPoint]) -> list[list[SweepPoint]]:
@@ -110,9 +120,15 @@ def group_by_program(points: list[SweepPoint]) -> list[list[SweepPoint]]:
 
 
 def static_fields(base: SlamConfig, axes: list[GridAxis]) -> list[str]:
-    """The swept fields whose values change the compiled program (static fields)."""
-    return [axis.field for axis in axes
-            if len({static_key(apply_overrides(base, {axis.field: v})) for v in axis.values}) > 1]
+    """The swept fields whose values change the compiled program (static fields; iteration counts share the sweep's
+    common caps and do not)."""
+    statics = []
+    for axis in axes:
+        configs = [apply_overrides(base, {axis.field: v}) for v in axis.values]
+        caps = common_caps(configs)
+        if len({static_key(c.with_caps(caps)) for c in configs}) > 1:
+            statics.append(axis.field)
+    return statics
 
 
 # ------------------------------------------------------------------------------------------ batches and placement

@@ -125,6 +125,7 @@ def render(
     cbknn: cb.CBKNN | None = None,
     motion: float | jax.Array = 0.0,
     selection: SlotSelection | None = None,
+    smooth: bool | jax.Array = True,
 ) -> Render:
     """Render a Gaussian map from a world-to-camera pose, optionally with CB-KNN smoothing.
 
@@ -138,6 +139,9 @@ def render(
       motion: inter-frame motion gamma in [0, 1] for CB-KNN's adaptive K (ignored without ``cbknn``).
       selection: ``None`` selects each pixel's contributors at ``w2c``; a :class:`SlotSelection` made at a nearby
         pose (:func:`select_slots`, same intrinsics and settings) composites those slots instead (no binning, no walk).
+      smooth: with ``cbknn``, whether to apply its correction: a [] bool that may be traced (a keyframe in SLAM's
+        ``paper`` mode), so that one compiled render serves both (False composites canonically: the render equals
+        ``cbknn=None``'s, with ``stats.cbknn`` all zeros). Ignored without ``cbknn``.
 
     Returns:
       The render, a :class:`Render` with colour [H, W, 3], depth [H, W] = sum w z (not normalised by the
@@ -165,8 +169,12 @@ def render(
             got = list(np.shape(selection.ids)) if isinstance(selection, SlotSelection) else type(selection).__name__
             raise ValueError(f"selection must be a SlotSelection with ids of shape {list(expected)} (K x the tile "
                              f"grid's pixels, from select_slots with the same intrinsics and settings), got {got}")
+    if np.ndim(smooth) != 0:
+        raise ValueError(f"smooth must be a scalar bool, got shape {list(np.shape(smooth))}")
+    # A concrete True (the default) smooths without a branch; anything else is a branch on the traced flag.
+    branch = None if smooth is True else jnp.asarray(smooth, bool)
     return _render(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, settings, cbknn,
-                   jnp.asarray(motion, jnp.float32), selection)
+                   jnp.asarray(motion, jnp.float32), selection, branch)
 
 
 class SlotSelection(NamedTuple):
@@ -328,6 +336,7 @@ def _render(
     cbknn: cb.CBKNN | None,
     motion: jax.Array,
     selection: SlotSelection | None = None,
+    smooth: jax.Array | None = None,
 ) -> Render:
     gaussians = _as_float32(gaussians)
     grid = TileGrid.for_image(intrinsics.height, intrinsics.width, settings.tile_size)
@@ -338,9 +347,16 @@ def _render(
         pixels = grid.pixel_coords().reshape(-1, 2)
         k_pixel = None
         if cbknn is not None:
-            projected = project(gaussians, w2c, intrinsics, settings.near, settings.dilation)
-            rho = cb.density_map(projected, grid.height, grid.width, cbknn.cell)
-            k_map = cb.kernel_size_map(rho, cbknn, motion)
+            def kernel_sizes():
+                projected = project(gaussians, w2c, intrinsics, settings.near, settings.dilation)
+                rho = cb.density_map(projected, grid.height, grid.width, cbknn.cell)
+                return rho, cb.kernel_size_map(rho, cbknn, motion)
+
+            def no_kernel():
+                cells = (-(-grid.height // cbknn.cell), -(-grid.width // cbknn.cell))
+                return jnp.zeros(cells, jnp.float32), jnp.zeros(cells, jnp.int32)
+
+            rho, k_map = kernel_sizes() if smooth is None else jax.lax.cond(smooth, kernel_sizes, no_kernel)
             k_pixel = k_map.reshape(-1)[cb.pixel_cells(pixels, grid.height, grid.width, cbknn.cell)]
         if settings.pose_only:
             def source(ids):
@@ -349,7 +365,7 @@ def _render(
             table = splat_table(gaussians, w2c, intrinsics, settings.near, settings.dilation)
             source = lambda ids: gather(table, ids)  # noqa: E731
         out, final_transmittance, shift_sum, num_corrected = _composite_batched(
-            source, selection.ids, pixels, in_image, k_pixel, cbknn, settings, grid
+            source, selection.ids, pixels, in_image, k_pixel, cbknn, settings, grid, smooth
         )
         cbknn_stats = None
         if cbknn is not None:
@@ -386,31 +402,45 @@ def _render(
     )
 
 
-def _composite_pixels(source, ids, pixels, in_image, k_pixel, cbknn, use_pallas: bool):
+def _composite_pixels(source, ids, pixels, in_image, k_pixel, cbknn, use_pallas: bool, smooth=None):
     """Slots, alpha and blend of pixels [P] with slots ``ids`` [K, P] (``source(ids)`` gives the :class:`Slots`);
-    CB-KNN (method_spec D.5, D.7) when ``cbknn``. Returns (Composite, canonical final transmittance [P], CB-KNN
-    shift sum (px), number of corrected slots)."""
+    CB-KNN (method_spec D.5, D.7) when ``cbknn``, where ``smooth`` (a traced [] bool; None: always) holds. Returns
+    (Composite, canonical final transmittance [P], CB-KNN shift sum (px), number of corrected slots)."""
     slots = source(ids)
     alpha = slot_alpha(slots, pixels)
     if cbknn is None:
         out, final = blend(alpha, slots.r, slots.g, slots.b, slots.depth, use_pallas)
         return out, final, jnp.float32(0.0), jnp.int32(0)
-    # CB-KNN needs the canonical weights themselves (consensus colour, top-weight selection).
-    weights, final = blend_weights(alpha)
-    corrected = cb.correct_slots(slots, pixels, alpha, weights, k_pixel, cbknn)
-    out, _ = blend(corrected.alpha, corrected.r, corrected.g, corrected.b, slots.depth, use_pallas)
-    shift_sum = jnp.sum(jnp.where(in_image[None, :], corrected.shift_px, 0.0))
-    return out, final, shift_sum, jnp.sum(corrected.corrected & in_image[None, :], dtype=jnp.int32)
+
+    def corrected():
+        # CB-KNN needs the canonical weights themselves (consensus colour, top-weight selection).
+        weights, final = blend_weights(alpha)
+        fixed = cb.correct_slots(slots, pixels, alpha, weights, k_pixel, cbknn)
+        shift_sum = jnp.sum(jnp.where(in_image[None, :], fixed.shift_px, 0.0))
+        count = jnp.sum(fixed.corrected & in_image[None, :], dtype=jnp.int32)
+        return (fixed.alpha, fixed.r, fixed.g, fixed.b), final, shift_sum, count
+
+    def canonical():
+        return (alpha, slots.r, slots.g, slots.b), jnp.zeros_like(alpha[0]), jnp.float32(0.0), jnp.int32(0)
+
+    # Only the correction is branched on: the slots, their alpha and the blend are compiled once for both.
+    (a, r, g, b), final, shift_sum, count = (corrected() if smooth is None
+                                             else jax.lax.cond(smooth, corrected, canonical))
+    out, blended_final = blend(a, r, g, b, slots.depth, use_pallas)
+    if smooth is not None:
+        final = jnp.where(smooth, final, blended_final)
+    return out, final, shift_sum, count
 
 
-def _composite_batched(source, ids, pixels, in_image, k_pixel, cbknn, settings: RasterSettings, grid: TileGrid):
+def _composite_batched(source, ids, pixels, in_image, k_pixel, cbknn, settings: RasterSettings, grid: TileGrid,
+                       smooth=None):
     """:func:`_composite_pixels` over all pixels, in equal batches of tiles when the K x P slots exceed
     ``settings.slots_per_batch`` (each batch rematerialised in the backward pass, so memory stays bounded)."""
     use_pallas = settings.uses_pallas
     num_slots = ids.shape[0]
     num_batches = min(grid.num_tiles, -(-num_slots * ids.shape[1] // settings.slots_per_batch))
     if num_batches == 1:
-        return _composite_pixels(source, ids, pixels, in_image, k_pixel, cbknn, use_pallas)
+        return _composite_pixels(source, ids, pixels, in_image, k_pixel, cbknn, use_pallas, smooth)
     tiles = -(-grid.num_tiles // num_batches)
     num_batches = -(-grid.num_tiles // tiles)  # no batch of padding only
     width = tiles * grid.pixels_per_tile
@@ -425,7 +455,7 @@ def _composite_batched(source, ids, pixels, in_image, k_pixel, cbknn, settings: 
 
     @jax.checkpoint
     def batch(args):
-        return _composite_pixels(source, *args, cbknn, use_pallas)
+        return _composite_pixels(source, *args, cbknn, use_pallas, smooth)
 
     out, final, shift_sum, num_corrected = jax.lax.map(batch, per_pixel)
     crop = lambda x: x.reshape((-1,) + x.shape[2:])[: ids.shape[1]]  # noqa: E731

@@ -11,11 +11,15 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 
-from gsjax.config_fields import check_fields, param
+from gsjax.checks import is_checkable
+from gsjax.config_fields import check_fields, choice_is, derived, param, register_config
 from gsjax.names import CBKNN_MODES
 from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
+from gsjax.slam.loops import LoopCaps
 from gsjax.slam.tracking_config import (
     BEST_POSE,
     TRACKING_OPTIMIZERS,
@@ -70,8 +74,8 @@ class MappingConfig:
         slots; a Gaussian that would newly enter a pixel's first K in between does not).
     """
 
-    iters: int = param(30, "iterations", static=True, low=1)
-    strided_iters: int = param(0, "iterations", static=True, low=0)
+    iters: int = param(30, "iterations", low=1)
+    strided_iters: int = param(0, "iterations", low=0)
     window_size: int = param(24, "views", static=True, low=2)
     lr_means: float = param(1e-4, "m", low=0.0)
     lr_means_first: float = param(1e-4, "m", low=0.0)
@@ -88,8 +92,8 @@ class MappingConfig:
     clamp_rgb: bool = param(False, "flag")
     overlap_samples: int = param(1600, "count", static=True, low=1)
     overlap_margin: float = param(20.0, "px", low=0.0)
-    reselect_every: int = param(1, "iterations", static=True, low=1)
-    every: int = param(1, "frames", static=True, low=1)
+    reselect_every: int = param(1, "iterations", low=1)
+    every: int = param(1, "frames", low=1)
 
     def __post_init__(self):
         check_fields(self, "mapping")
@@ -115,7 +119,7 @@ class DensifyConfig:
         check_fields(self, "densify")
 
 
-@jax.tree_util.register_dataclass
+@register_config
 @dataclasses.dataclass(frozen=True)
 class CBKNNConfig:
     """Where CB-KNN acts (method_spec D.6) and its parameters.
@@ -136,13 +140,13 @@ class CBKNNConfig:
         ``max(1, floor(K (1 - dropout)))`` of them).
     """
 
-    mode: str = param("off", "choice", static=True, choices=CBKNN_MODES)
+    mode: str = param("off", "choice", choices=CBKNN_MODES)
     params: CBKNN = CBKNN()
-    track_keyframes: bool = param(True, "flag", static=True)
-    map_keyframes: bool = param(True, "flag", static=True)
-    densify: bool = param(True, "flag", static=True)
+    track_keyframes: bool = param(True, "flag")
+    map_keyframes: bool = param(True, "flag")
+    densify: bool = param(True, "flag")
     lambda_color_keyframe: float = param(0.6, "weight", low=0.0)
-    kf_overlap_smoothing: bool = param(False, "flag", static=True)
+    kf_overlap_smoothing: bool = param(False, "flag")
     smoothing_base_k: int = param(6, "count", static=True, low=1)
     smoothing_min_k: int = param(2, "count", static=True, low=1)
     smoothing_max_k: int = param(16, "count", static=True, low=1)
@@ -154,14 +158,19 @@ class CBKNNConfig:
             raise ValueError("cbknn.smoothing_min_k must not exceed cbknn.smoothing_max_k")
 
     @property
-    def smooth_renders(self) -> bool:
-        """Whether keyframe renders are smoothed per pixel (``paper`` mode)."""
-        return self.mode == "paper"
+    def smooth_renders(self) -> bool | jax.Array:
+        """Whether keyframe renders are smoothed per pixel (``paper`` mode): a bool, or a [] bool array when the mode is
+        traced."""
+        return choice_is(self.mode, "paper", CBKNN_MODES)
 
     @property
-    def smooth_overlap(self) -> bool:
-        """Whether the overlap samples are smoothed (``code_parity``, or ``paper`` with ``kf_overlap_smoothing``)."""
-        return self.mode == "code_parity" or (self.mode == "paper" and self.kf_overlap_smoothing)
+    def smooth_overlap(self) -> bool | jax.Array:
+        """Whether the overlap samples are smoothed (``code_parity``, or ``paper`` with ``kf_overlap_smoothing``): a
+        bool, or a [] bool array when the mode or the flag is traced."""
+        parity, paper = choice_is(self.mode, "code_parity", CBKNN_MODES), choice_is(self.mode, "paper", CBKNN_MODES)
+        if isinstance(parity, bool) and isinstance(self.kf_overlap_smoothing, bool):
+            return parity or (paper and self.kf_overlap_smoothing)
+        return jnp.logical_or(parity, jnp.logical_and(paper, self.kf_overlap_smoothing))
 
 
 @jax.tree_util.register_dataclass
@@ -220,6 +229,10 @@ class SlamConfig:
         Real RGB-D frames have 60-99 % valid depth; 1 % keeps far too few pixels to constrain a pose. Static (a
         property of the data, not a hyperparameter to sweep): the decision then depends on the frame alone, so in a
         batch of configs vmapped over shared frames it stays a branch instead of computing both sides.
+      caps: (derived, static) the loops' caps and mapping's selection buffer (:class:`gsjax.slam.loops.LoopCaps`):
+        the program runs any counts within them. Derived from the counts whenever the config is built; a sweep pins
+        common caps on its configs (:meth:`with_caps`, raised only where a count outgrows them), so that they share
+        one program. Not written to ``config.json`` and not set on the command line.
     """
 
     tracking: TrackingConfig = TrackingConfig()
@@ -231,14 +244,35 @@ class SlamConfig:
     scene_radius_depth_ratio: float = param(3.0, "ratio", low=0.0, low_open=True)
     min_valid_depth: float = param(0.01, "ratio", static=True, low=0.0, high=1.0)
     noise: NoiseConfig = NoiseConfig()
+    caps: LoopCaps | None = derived()
 
     def __post_init__(self):
         check_fields(self, "config")
-        if self.cbknn.smooth_renders and self.cbknn.params.k_max > self.raster.max_contributors:
+        concrete = isinstance(self.cbknn.mode, str) or is_checkable(self.cbknn.mode)  # (not traced, not a placeholder)
+        if concrete and np.any(self.cbknn.smooth_renders) and self.cbknn.params.k_max > self.raster.max_contributors:
             raise ValueError(
                 f"cbknn.params.k_max ({self.cbknn.params.k_max}) exceeds raster.max_contributors "
                 f"({self.raster.max_contributors})"
             )
+        derived = LoopCaps.of(self)
+        if derived is not None:  # (None: traced counts, under jit: the caps come with the tree structure)
+            caps = self.caps
+            if caps is None or not caps.pinned:
+                caps = derived
+            elif not caps.covers(LoopCaps.of(self, exact=True)):
+                caps = caps.union(derived)
+            object.__setattr__(self, "caps", caps)
+
+    def with_caps(self, caps: LoopCaps) -> SlamConfig:
+        """This config compiled for ``caps`` (configs given the same caps share one program; a sweep does that).
+
+        Args:
+          caps: the caps; a cap below this config's count is raised to hold it.
+
+        Returns:
+          The config with those caps.
+        """
+        return dataclasses.replace(self, caps=dataclasses.replace(caps, pinned=True))
 
 
 # Every config class (a pytree), for serialisation of the exported programs (gsjax.app.programs).

@@ -139,8 +139,9 @@ def select_window(
     """
     key_points, key_smooth, key_order = jax.random.split(key, 3)
     points = sample_points(key_points, depth, w2c, intrinsics, mapping.overlap_samples)
-    if cbknn.smooth_overlap:
-        points = smooth_points(key_smooth, points, cbknn)
+    smooth = cbknn.smooth_overlap
+    if smooth is not False:  # (False: a concrete mode that never smooths them, outside jit)
+        points = jax.lax.cond(smooth, lambda: smooth_points(key_smooth, points, cbknn), lambda: points)
     overlap = overlap_fractions(points, keyframes, intrinsics, mapping.overlap_margin)
     slots = jnp.arange(keyframes.capacity)
     eligible = (overlap > 0) & (slots < keyframes.count - 1)

@@ -15,6 +15,7 @@ from gsjax.raster.render import empty_selection
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import prune
 from gsjax.slam.keyframes import CURRENT, Window
+from gsjax.slam.loops import counted_scan, loop_caps
 from gsjax.slam.losses import mapping_loss
 from gsjax.slam.optimizers import MAP_PARAMS, finite_only_if_loss_is, map_optimizer, nonfinite_steps
 from gsjax.slam.state import KeyframeBuffer
@@ -125,14 +126,15 @@ def map_window(
       The optimised map (N slots), the last loss and the skipped iterations, as a :class:`MapResult`.
     """
     cfg = config.mapping
+    caps = loop_caps(config)
     optimizer = map_optimizer(config.mapping, jnp.where(first_map, cfg.lr_means_first, cfg.lr_means))
     params = {name: getattr(gaussians, name) for name in MAP_PARAMS}
-    smooth_stage = config.cbknn.smooth_renders and config.cbknn.map_keyframes
-    total = cfg.strided_iters + cfg.iters
-    picks = jax.random.categorical(key, jnp.where(views.valid, 0.0, -jnp.inf), shape=(total,))
+    smooth_stage = jnp.logical_and(config.cbknn.smooth_renders, config.cbknn.map_keyframes)
+    # A view per iteration slot of both loops (the first n of a longer draw are the draw of n, so the views do not
+    # depend on the caps); the full iterations read theirs after the strided ones.
+    picks = jax.random.categorical(key, jnp.where(views.valid, 0.0, -jnp.inf),
+                                   shape=(caps.mapping_strided + caps.mapping,))
     strided_config = strided_setup(config, intrinsics)
-
-    every = cfg.reselect_every
 
     def full_view(g, view_index, smooth, it, selection):
         view = render_view(g, views.w2c[view_index], intrinsics, config.raster, config.cbknn, smooth,
@@ -164,12 +166,12 @@ def map_window(
         # a loop, not vmap: the selection is traced once for the whole step, and batching its trace would redo it
         return jax.lax.map(one, (views.w2c, views.valid))
 
-    def iteration(view_at, carry, inputs):
-        params, active, opt_state, selections = carry
-        it, view_index = inputs
+    def iteration(view_at, it, view_index, carry):
+        params, active, opt_state, selections, _ = carry
         selection = None
-        if every > 1:
-            selections = jax.lax.cond(it % every == 0, lambda: select_all(params, active), lambda: selections)
+        if caps.mapping_reselect:
+            selections = jax.lax.cond(it % cfg.reselect_every == 0, lambda: select_all(params, active),
+                                      lambda: selections)
             selection = jax.tree.map(lambda x: x[view_index], selections)
         loss, grads = jax.value_and_grad(loss_fn)(params, active, view_index, it, view_at, selection)
         # Free slots render nothing; only the active entries' gradients decide whether the step is finite.
@@ -182,19 +184,18 @@ def map_window(
         updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grads), opt_state)
         params = optax.apply_updates(params, updates)
         params["rgb"] = jnp.where(cfg.clamp_rgb, jnp.clip(params["rgb"], 0.0, 1.0), params["rgb"])
-        return (params, active, opt_state, selections), loss
+        return params, active, opt_state, selections, loss
 
     selections = None
-    if every > 1:
+    if caps.mapping_reselect:
         selections = empty_selection(intrinsics, config.raster, views.w2c.shape[:1])
-    carry = (params, gaussians.active, optimizer.init(params), selections)
-    steps = jnp.arange(total, dtype=jnp.int32)
-    if cfg.strided_iters:
-        carry, _ = jax.lax.scan(lambda c, x: iteration(strided_view, c, x), carry,
-                                (steps[: cfg.strided_iters], picks[: cfg.strided_iters]))
-    (params, active, opt_state, _), losses = jax.lax.scan(
-        lambda c, x: iteration(full_view, c, x), carry, (steps[cfg.strided_iters:], picks[cfg.strided_iters:])
-    )
+    carry = (params, gaussians.active, optimizer.init(params), selections, jnp.float32(0.0))
+    carry = counted_scan(lambda i, c: iteration(strided_view, i, picks[i], c), carry, cfg.strided_iters,
+                         caps.mapping_strided, differentiable=caps.differentiable)
+    strided = jnp.minimum(cfg.strided_iters, caps.mapping_strided)
+    carry = counted_scan(lambda i, c: iteration(full_view, strided + i, picks[strided + i], c), carry, cfg.iters,
+                         caps.mapping, differentiable=caps.differentiable)
+    params, active, opt_state, _, last_loss = carry
     nonfinite = nonfinite_steps(opt_state)
     out = Gaussians(params["means"], params["log_scales"], params["logit_opacities"], params["rgb"], active)
-    return MapResult(out, losses[-1], nonfinite)
+    return MapResult(out, last_loss, nonfinite)

@@ -14,6 +14,7 @@ from gsjax.slam.config import MappingConfig, TrackingConfig
 _Grads = TypeVar("_Grads")
 
 MAP_PARAMS = ("means", "rgb", "logit_opacities", "log_scales")  # the Gaussians' fields mapping optimises
+_NEVER_GIVE_UP = 2**30  # apply_if_finite's limit of consecutive skipped steps: above any frame's iterations
 
 
 def finite_only_if_loss_is(loss: jax.Array, grads: _Grads) -> _Grads:
@@ -58,14 +59,14 @@ def pose_optimizer(tracking: TrackingConfig) -> optax.GradientTransformation:
       The optax optimizer over ``{"rho", "phi"}``.
     """
     cfg = tracking
-    total = cfg.coarse.iters + cfg.strided_iters + cfg.iters  # one Adam over every iteration of the frame
+    total = cfg.coarse.iters + cfg.strided_iters + cfg.iters  # one Adam over every iteration of the frame (traced)
 
     def adam(lr):
-        decay = lambda count: lr * cfg.lr_final_ratio ** (count / max(total - 1, 1))  # noqa: E731
+        decay = lambda count: lr * cfg.lr_final_ratio ** (count / jnp.maximum(total - 1, 1))  # noqa: E731
         return optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-8), optax.scale_by_learning_rate(decay))
 
     groups = optax.multi_transform({"rho": adam(cfg.lr_trans), "phi": adam(cfg.lr_rot)}, {"rho": "rho", "phi": "phi"})
-    return optax.apply_if_finite(groups, max_consecutive_errors=total)  # never gives up within a frame
+    return optax.apply_if_finite(groups, max_consecutive_errors=_NEVER_GIVE_UP)  # never gives up within a frame
 
 
 def map_optimizer(mapping: MappingConfig, lr_means: float | jax.Array) -> optax.GradientTransformation:
@@ -88,7 +89,7 @@ def map_optimizer(mapping: MappingConfig, lr_means: float | jax.Array) -> optax.
     groups = {name: optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15), optax.scale_by_learning_rate(lr))
               for name, lr in rates.items()}
     optimizer = optax.apply_if_finite(optax.multi_transform(groups, {name: name for name in MAP_PARAMS}),
-                                      max_consecutive_errors=cfg.strided_iters + cfg.iters)  # never gives up
+                                      max_consecutive_errors=_NEVER_GIVE_UP)
     if cfg.skip_step_at_prune and cfg.prune_iters:
         prune_iters = jnp.asarray(cfg.prune_iters, jnp.int32)
         optimizer = optax.transforms.conditionally_mask(optimizer, lambda step: ~jnp.isin(step, prune_iters))

@@ -264,13 +264,19 @@ def grow_capacity(state: SlamState, capacity: int) -> SlamState:
 
 
 def keyframe_capacity_for(num_frames: int, every: int) -> int:
-    """How many keyframes a sequence can produce: frame 0, every ``every``-th, and the second-to-last.
+    """The keyframe slots of a sequence: at least the keyframes it can produce (frame 0, every ``every``-th and the
+    second-to-last: ``num_frames // every + 2``), rounded up to a power of two (at least 8).
+
+    The slots are a shape of the compiled SLAM program; rounded, sequences of similar lengths (a run and the
+    landscape of one of its frames, ``--max-frames`` 20 and 30) share one program. Empty slots are never chosen for a
+    window, and the window's random order is drawn per slot, so the slots beyond the keyframes change nothing.
 
     Args:
       num_frames: the sequence's length.
       every: ``SlamConfig.keyframe_every``.
 
     Returns:
-      ``num_frames // every + 2``, a capacity that always suffices.
+      The capacity, a power of two >= 8 and >= ``num_frames // every + 2``.
     """
-    return num_frames // every + 2
+    needed = num_frames // every + 2
+    return max(8, 1 << (needed - 1).bit_length())

@@ -234,11 +234,8 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         def map_now():
             return map_window(key_map, gaussians, views, intrinsics, config, scene_radius, first_map=~started)
 
-        if config.mapping.every > 1:
-            mapped = jax.lax.cond(~started | keyframe | (t % config.mapping.every == 0), map_now,
-                                  lambda: MapResult(gaussians, jnp.float32(0.0), jnp.int32(0)))
-        else:
-            mapped = map_now()
+        mapped = jax.lax.cond(~started | keyframe | (t % config.mapping.every == 0), map_now,
+                              lambda: MapResult(gaussians, jnp.float32(0.0), jnp.int32(0)))
         final_map, freed_after = mapped.gaussians.without_nonfinite()
         freed = freed_before + freed_after
 

@@ -22,6 +22,7 @@ falls back to the prediction when no attempt stays within the bound.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -32,7 +33,8 @@ import optax
 from gsjax.camera import Intrinsics, camera_center, perturb_left, rotation_angle
 from gsjax.gaussians import Gaussians
 from gsjax.raster import select_slots
-from gsjax.slam.config import SlamConfig, TrackingConfig
+from gsjax.slam.config import CoarseToFine, SlamConfig, TrackingConfig
+from gsjax.slam.loops import LoopCaps, counted_scan, loop_caps
 from gsjax.slam.losses import TrackingTerms, tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
 from gsjax.slam.views import render_view, strided_frame, strided_setup, strided_slots
@@ -121,10 +123,9 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
     gaussians, color, depth, w2c_init, intrinsics, smooth, gamma = problem
     gaussians = jax.lax.stop_gradient(gaussians)
     config = dataclasses.replace(config, raster=dataclasses.replace(config.raster, pose_only=True))
-    lambda_color = jnp.where(smooth, config.cbknn.lambda_color_keyframe, cfg.lambda_color) if (
-        config.cbknn.smooth_renders and config.cbknn.track_keyframes
-    ) else cfg.lambda_color
-    smooth = jnp.asarray(smooth) & config.cbknn.track_keyframes
+    smooth = jnp.logical_and(smooth, config.cbknn.track_keyframes)
+    lambda_color = jnp.where(jnp.logical_and(smooth, config.cbknn.smooth_renders), config.cbknn.lambda_color_keyframe,
+                             cfg.lambda_color)
 
     def view_at(delta, selection=None):
         return render_view(gaussians, perturb_left(delta, w2c_init), intrinsics, config.raster, config.cbknn, smooth,
@@ -144,51 +145,70 @@ def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
 
     ``tracking.optimizer`` picks Adam (after the coarse levels and the strided grids when configured) or
     Levenberg-Marquardt (after the strided grids when configured; rendered on the XLA path for its forward mode).
+    The iteration counts are traced: each stage is a loop over its cap (``config.caps``) that skips the iterations
+    past its count.
 
     Args:
       problem: the frame's tracking problem.
-      config: the SLAM config (its ``tracking``, ``raster`` and ``cbknn`` are read).
+      config: the SLAM config (its ``tracking``, ``raster``, ``cbknn`` and ``caps`` are read).
 
     Returns:
       the tracked pose, its loss, the skipped iterations and the iterations run.
     """
+    caps = loop_caps(config)
     if config.tracking.optimizer == "lm":
         # LM's Jacobian is forward mode, which the Pallas compositing (a custom_vjp) does not have.
         config = dataclasses.replace(config, raster=config.raster.for_forward_mode())
     objective = tracking_objective(problem, config)
-    strided = strided_problem(problem, config) if config.tracking.strided_iters else None
+    strided = strided_problem(problem, config) if caps.tracking_strided else None
     if config.tracking.optimizer == "lm":
         return _track_lm((objective.view_at, problem.color, problem.depth), objective.loss, problem.w2c_init,
-                         config.tracking, objective.lambda_color, None if strided is None else strided(0))
-    return _track_adam(objective.loss, problem.w2c_init, config.tracking,
+                         config.tracking, caps, objective.lambda_color, None if strided is None else strided(0))
+    return _track_adam(objective.loss, problem.w2c_init, config.tracking, caps,
                        None if strided is None else lambda delta, phase, sel: strided(phase)[0].loss(delta, sel),
-                       coarse_losses(problem, config), objective.select)
+                       coarse_loss(problem, config) if caps.tracking_coarse else None, objective.select)
 
 
-def coarse_losses(problem: TrackingProblem, config: SlamConfig) -> list[Callable]:
-    """The losses of coarse-to-fine tracking's levels, coarsest first.
+def coarse_level(it: jax.Array, coarse: CoarseToFine) -> jax.Array:
+    """The coarse-to-fine level of coarse iteration ``it``: ``coarse.iters`` split over ``coarse.levels`` levels from
+    the coarsest (0), the remainder to the first.
 
-    Each is the tracking objective's loss with the residuals blurred at ``coarse.sigma_px`` x 2^(levels - 1 -
-    level) px (``tracking.blur.radius_px`` truncates the filter).
+    Args:
+      it: [] int32 the iteration, counted from the first coarse one (may be traced).
+      coarse: the coarse-to-fine config (its ``iters`` and ``levels`` may be traced).
+
+    Returns:
+      [] int32 the level, 0 (coarsest) to ``levels`` - 1.
+    """
+    per = coarse.iters // coarse.levels
+    first = per + coarse.iters % coarse.levels
+    return jnp.where(it < first, 0, 1 + (it - first) // jnp.maximum(per, 1)).astype(jnp.int32)
+
+
+def coarse_loss(problem: TrackingProblem, config: SlamConfig) -> Callable:
+    """The loss of coarse-to-fine tracking at each coarse iteration.
+
+    At level ``l`` (:func:`coarse_level`) it is the tracking objective's loss with the residuals blurred at
+    ``coarse.sigma_px`` x 2^(levels - 1 - l) px (``tracking.blur.radius_px`` truncates the filter).
 
     Args:
       problem: the frame's tracking problem.
       config: the SLAM config (its ``tracking.coarse`` sets the levels).
 
     Returns:
-      ``tracking.coarse.levels`` functions ``loss(delta, selection=None)`` -> [] (delta [6] as
-        :class:`TrackingObjective`), coarsest first; empty when ``tracking.coarse.iters`` is 0.
+      ``loss(delta, it, selection=None)`` -> [] for delta [6] (as :class:`TrackingObjective`) at coarse iteration
+        ``it`` (counted from the first coarse one).
     """
     cfg = config.tracking
-    if not cfg.coarse.iters:
-        return []
-    levels = []
-    for level in range(cfg.coarse.levels):
-        sigma = cfg.coarse.sigma_px * 2.0 ** (cfg.coarse.levels - 1 - level)
+
+    def loss(delta, it, selection=None):
+        level = coarse_level(it, cfg.coarse)
+        sigma = jnp.ldexp(jnp.asarray(cfg.coarse.sigma_px, jnp.float32), cfg.coarse.levels - 1 - level)
         blurred = dataclasses.replace(config, tracking=dataclasses.replace(
             cfg, blur=dataclasses.replace(cfg.blur, sigma_px=sigma)))
-        levels.append(tracking_objective(problem, blurred).loss)
-    return levels
+        return tracking_objective(problem, blurred).loss(delta, selection)
+
+    return loss
 
 
 def strided_problem(
@@ -244,8 +264,8 @@ class AdamCarry(NamedTuple):
       best_loss: [] float32 that loss (inf until a finite one).
       progress_at: [] int32 the iteration of the last progress (for ``tracking.stop.window``).
       progress_loss: [] float32 the loss at the last progress (inf before the first).
-      selection: the :class:`gsjax.raster.SlotSelection` in use (chosen every ``tracking.reselect_every``
-        iterations), or None when every render chooses its own.
+      selection: the :class:`gsjax.raster.SlotSelection` in use, chosen every ``tracking.reselect_every``
+        iterations (every iteration when it is 1), or None when every render chooses its own.
     """
 
     it: jax.Array
@@ -258,23 +278,24 @@ class AdamCarry(NamedTuple):
     selection: Any
 
 
-def _track_adam(loss_fn, w2c_init, cfg: TrackingConfig, strided_loss_fn=None, coarse=(), select=None) -> TrackResult:
+def _track_adam(loss_fn, w2c_init, cfg: TrackingConfig, caps: LoopCaps, strided_loss_fn=None, coarse=None,
+                select=None) -> TrackResult:
     """Adam on ``loss_fn`` (delta [6], selection -> []) for ``tracking.iters`` iterations, after
     ``tracking.strided_iters`` on ``strided_loss_fn(delta, phase, selection)`` when given (phase = the iteration
-    number mod 4: each of the four strided grids in turn), after ``tracking.coarse.iters`` split over the ``coarse``
-    levels' losses (coarsest first). Only full iterations compete for the best pose: strided and blurred losses do
-    not compare with them. With ``tracking.reselect_every`` R > 1, ``select(delta)`` chooses the contributor slots
-    at iterations 0, R, 2R, ... and the iterations in between composite those (the selection is None with R = 1:
-    every render chooses its own)."""
+    number mod 4: each of the four strided grids in turn), after ``tracking.coarse.iters`` on ``coarse(delta, it,
+    selection)`` when given (``it`` counted from the first coarse iteration; :func:`coarse_loss`). Only full iterations
+    compete for the best pose: strided and blurred losses do not compare with them. ``select(delta)`` chooses the
+    contributor slots at iterations 0, R, 2R, ... (R = ``tracking.reselect_every``) and the iterations in between
+    composite those (None: every render chooses its own). Each stage is a :func:`gsjax.slam.loops.counted_scan` within
+    its cap in ``caps``."""
     optimizer = pose_optimizer(cfg)
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
-    every = cfg.reselect_every if select is not None else 1
 
     def iteration(loss_fn, carry: AdamCarry) -> AdamCarry:
         it, delta, selection = carry.it, carry.delta, carry.selection
-        if every > 1:
-            selection = jax.lax.cond(it % every == 0, lambda: select(tangent(delta)), lambda: selection)
+        if select is not None:
+            selection = jax.lax.cond(it % cfg.reselect_every == 0, lambda: select(tangent(delta)), lambda: selection)
         loss, grad = jax.value_and_grad(lambda d: loss_fn(tangent(d), it, selection))(delta)
         updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grad), carry.opt_state)
         new_delta = optax.apply_updates(delta, updates)
@@ -287,61 +308,90 @@ def _track_adam(loss_fn, w2c_init, cfg: TrackingConfig, strided_loss_fn=None, co
                          jnp.where(progress, it, carry.progress_at), jnp.where(progress, loss, carry.progress_loss),
                          selection)
 
-    def scan(loss_fn, init, length):
-        return jax.lax.scan(lambda carry, _: (iteration(loss_fn, carry), None), init, None, length=length)[0]
+    def stage(loss_fn, init, count, cap, running=None):
+        return counted_scan(lambda _, carry: iteration(loss_fn, carry), init, count, cap, running, caps.differentiable)
 
     def restart(final: AdamCarry) -> AdamCarry:  # the next stage goes on from this one's pose, state, selection
         return final._replace(best_delta=final.delta, best_loss=inf, progress_at=final.it, progress_loss=inf)
 
-    def full_loss(delta, it, selection):
-        return loss_fn(delta) if selection is None else loss_fn(delta, selection)
-
     inf = jnp.float32(jnp.inf)
     selection0 = None
-    if every > 1:
-        # (its trace is the selection's first, which the loop's calls then reuse)
+    if select is not None:  # (its trace is the selection's first, which the loop's calls then reuse)
         selection0 = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(select, tangent(delta0)))
     init = AdamCarry(jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf, selection0)
-    for level, level_loss in enumerate(coarse):  # coarse.iters split over the levels, the remainder to the first
-        count = cfg.coarse.iters // len(coarse) + (cfg.coarse.iters % len(coarse) if level == 0 else 0)
-        init = restart(scan(lambda d, it, sel, f=level_loss: f(d) if sel is None else f(d, sel), init, count))
-    if strided_loss_fn is not None and cfg.strided_iters:
-        init = restart(scan(lambda d, it, sel: strided_loss_fn(d, it % 4, sel), init, cfg.strided_iters))
+    if coarse is not None:
+        init = restart(stage(coarse, init, cfg.coarse.iters, caps.tracking_coarse))
+    if strided_loss_fn is not None:
+        init = restart(stage(lambda d, it, sel: strided_loss_fn(d, it % 4, sel), init, cfg.strided_iters,
+                             caps.tracking_strided))
     end = init.it + cfg.iters
-    if cfg.stop.window > 0:
-        def running(carry: AdamCarry):
-            return (carry.it < end) & (carry.it - carry.progress_at <= cfg.stop.window)
 
-        final = jax.lax.while_loop(running, lambda carry: iteration(full_loss, carry), init)
-    else:
-        final = scan(full_loss, init, cfg.iters)
+    def running(carry: AdamCarry):  # the early stop: no progress for stop.window iterations (0: never)
+        return (carry.it < end) & ((cfg.stop.window == 0) | (carry.it - carry.progress_at <= cfg.stop.window))
+
+    final = stage(lambda d, it, sel: loss_fn(d) if sel is None else loss_fn(d, sel), init, cfg.iters, caps.tracking,
+                  running)
     return TrackResult(perturb_left(tangent(final.best_delta), w2c_init), final.best_loss,
                        nonfinite_steps(final.opt_state), final.it)
 
 
-def _track_lm(full, loss_fn, w2c_init, cfg: TrackingConfig, lambda_color, strided=None) -> TrackResult:
+@functools.cache
+def _step_limited() -> type:
+    """A least-squares solver stopped after ``limit`` steps (traced), within its loop's static ``max_steps`` (the
+    class is made on first use: optimistix takes 0.3 s to import, and only the LM tracker needs it)."""
+    import optimistix as optx
+
+    class StepLimited(optx.AbstractLeastSquaresSolver):
+        inner: optx.AbstractLeastSquaresSolver
+        limit: jax.Array
+        rtol: float
+        atol: float
+        norm: Callable
+
+        def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+            return self.inner.init(fn, y, args, options, f_struct, aux_struct, tags), jnp.int32(0)
+
+        def step(self, fn, y, args, options, state, tags):
+            y, inner_state, aux = self.inner.step(fn, y, args, options, state[0], tags)
+            return y, (inner_state, state[1] + 1), aux
+
+        def terminate(self, fn, y, args, options, state, tags):
+            done, result = self.inner.terminate(fn, y, args, options, state[0], tags)
+            return done | (state[1] >= self.limit), result
+
+        def postprocess(self, fn, y, aux, args, options, state, tags, result):
+            return self.inner.postprocess(fn, y, aux, args, options, state[0], tags, result)
+
+    return StepLimited
+
+
+def _track_lm(full, loss_fn, w2c_init, cfg: TrackingConfig, caps: LoopCaps, lambda_color,
+              strided=None) -> TrackResult:
     """Levenberg-Marquardt on ``full`` = (view_at, colour, depth) from the solution of ``strided`` (the same on
-    every other pixel, at most ``tracking.strided_iters`` steps) when given."""
-    import optimistix as optx  # 0.3 s to import (equinox, lineax): only the LM tracker needs it
+    every other pixel, at most ``tracking.strided_iters`` steps) when given; at most ``tracking.iters`` steps on
+    every pixel (each solve's loop is bounded by its cap in ``caps``)."""
+    import optimistix as optx
 
-    solver: Any = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)  # generic over types optimistix leaves open
+    inner: Any = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)  # generic over types optimistix leaves open
 
-    def solve(problem, start, steps, blur_px):
+    def solve(problem, start, steps, cap, blur_px):
         view_at, color, depth = problem
 
         def residuals(delta, _):
             return tracking_residuals(view_at(delta), color, depth, TrackingTerms.of(cfg, lambda_color, blur_px))
 
-        return optx.least_squares(residuals, solver, start, max_steps=steps, throw=False)
+        solver: Any = _step_limited()(inner, jnp.asarray(steps, jnp.int32), inner.rtol, inner.atol, inner.norm)
+        return optx.least_squares(residuals, solver, start, max_steps=cap, throw=False)
 
     delta0 = jnp.zeros(6, jnp.float32)
     start, strided_steps = delta0, jnp.int32(0)
-    if strided is not None and cfg.strided_iters:
+    if strided is not None:
         sigma_strided = cfg.blur.sigma_px / 2  # the strided grid's pixels are twice as far apart
-        first = solve((strided[0].view_at, *strided[1:]), delta0, cfg.strided_iters, sigma_strided)
+        first = solve((strided[0].view_at, *strided[1:]), delta0, cfg.strided_iters, caps.tracking_strided,
+                      sigma_strided)
         start = jnp.where(jnp.all(jnp.isfinite(first.value)), first.value, delta0)
         strided_steps = jnp.asarray(first.stats["num_steps"], jnp.int32)
-    solution = solve(full, start, cfg.iters, cfg.blur.sigma_px)
+    solution = solve(full, start, cfg.iters, caps.tracking, cfg.blur.sigma_px)
     delta = solution.value
     start_loss, end_loss = loss_fn(delta0), loss_fn(delta)
     usable = jnp.all(jnp.isfinite(delta)) & jnp.isfinite(end_loss)

@@ -8,7 +8,9 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import numpy as np
 
+from gsjax.checks import is_checkable
 from gsjax.config_fields import check_fields, param
 
 TRACKING_OPTIMIZERS = ("adam", "lm")
@@ -52,7 +54,7 @@ class EarlyStop:
       rtol: the relative loss drop that counts as progress for ``window``.
     """
 
-    window: int = param(0, "iterations", static=True, low=0)
+    window: int = param(0, "iterations", low=0)
     rtol: float = param(1e-3, "ratio", low=0.0, high=1.0)
 
     def __post_init__(self):
@@ -94,8 +96,8 @@ class CoarseToFine:
       sigma_px: the finest level's blur std.
     """
 
-    iters: int = param(0, "iterations", static=True, low=0)
-    levels: int = param(2, "count", static=True, low=1)
+    iters: int = param(0, "iterations", low=0)
+    levels: int = param(2, "count", low=1)
     sigma_px: float = param(1.0, "px", low=0.0)
 
     def __post_init__(self):
@@ -162,7 +164,7 @@ class TrackingConfig:
       exposure: exposure compensation (:class:`Exposure`).
     """
 
-    iters: int = param(40, "iterations", static=True, low=1)
+    iters: int = param(40, "iterations", low=1)
     optimizer: str = param("adam", "choice", static=True, choices=TRACKING_OPTIMIZERS)
     lr_trans: float = param(2e-3, "m", low=0.0)
     lr_rot: float = param(8e-4, "rad", low=0.0)
@@ -172,8 +174,8 @@ class TrackingConfig:
     lr_final_ratio: float = param(1.0, "ratio", low=0.0, low_open=True, high=1.0)
     best_pose: str = param("pre_step", "choice", static=True, choices=BEST_POSE)
     normalized_depth: bool = param(False, "flag", static=True)
-    strided_iters: int = param(0, "iterations", static=True, low=0)
-    reselect_every: int = param(1, "iterations", static=True, low=1)
+    strided_iters: int = param(0, "iterations", low=0)
+    reselect_every: int = param(1, "iterations", low=1)
     guard: DivergenceGuard = DivergenceGuard()
     stop: EarlyStop = EarlyStop()
     blur: ImageBlur = ImageBlur()
@@ -182,9 +184,10 @@ class TrackingConfig:
 
     def __post_init__(self):
         check_fields(self, "tracking")
-        if self.coarse.iters and not self.blur.radius_px:
+        coarse = is_checkable(self.coarse.iters) and bool(np.any(np.asarray(self.coarse.iters)))
+        if coarse and not self.blur.radius_px:
             raise ValueError("tracking.coarse.iters needs tracking.blur.radius_px > 0 (the coarse levels' filter)")
-        if self.coarse.iters and self.optimizer != "adam":
+        if coarse and self.optimizer != "adam":
             raise ValueError("tracking.coarse.iters runs with tracking.optimizer adam only")
 
 

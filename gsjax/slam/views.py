@@ -50,9 +50,8 @@ def render_view(
 ) -> RenderedView:
     """Render ``gaussians`` at ``w2c``, with CB-KNN's per-pixel smoothing where ``smooth`` is true.
 
-    When ``cbknn`` never smooths renders (a mode other than ``paper``), this is the canonical render and ``smooth``
-    is ignored, so no second render path is compiled; otherwise ``jax.lax.cond`` picks the smoothed or the
-    canonical render.
+    The correction applies where ``smooth`` holds in ``paper`` mode (the mode may be traced): one render, whose
+    CB-KNN correction is a branch on that flag; a concrete mode other than ``paper`` renders canonically only.
 
     Args:
       gaussians: the map, as :func:`gsjax.raster.render`.
@@ -68,17 +67,17 @@ def render_view(
     Returns:
       the render's colour, depth, silhouette, depth_sq and truncation diagnostics.
     """
-    def canonical():
+    paper = cbknn.smooth_renders
+    if paper is False:  # a concrete mode other than paper (outside jit): the canonical render only
         return _view(render(gaussians, w2c, intrinsics, raster, selection=selection))
-
-    if not cbknn.smooth_renders:
-        return canonical()
-    return jax.lax.cond(
-        smooth,
-        lambda: _view(render(gaussians, w2c, intrinsics, raster, cbknn=cbknn.params, motion=gamma,
-                             selection=selection)),
-        canonical,
-    )
+    params = cbknn.params
+    if params.k_max > raster.max_contributors:
+        # A config smooths only with k_max <= max_contributors (SlamConfig checks it in paper mode); with a traced
+        # mode the smoothing is compiled all the same, and never runs.
+        params = dataclasses.replace(params, k_max=raster.max_contributors,
+                                     k_min=min(params.k_min, raster.max_contributors))
+    return _view(render(gaussians, w2c, intrinsics, raster, cbknn=params, motion=gamma, selection=selection,
+                        smooth=jnp.logical_and(smooth, paper)))
 
 
 def strided_setup(config: SlamConfig, intrinsics: Intrinsics) -> SlamConfig:

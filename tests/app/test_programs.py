@@ -71,8 +71,10 @@ def test_the_key_follows_static_fields_shapes_and_the_source_not_traced_values()
     args = (state, None, None, config, tiny_sequence().intrinsics)
     key = program_key(run_chunk, args, "digest")
     traced = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, lr_trans=1e-3))
-    static = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, iters=4))
-    assert program_key(run_chunk, (state, None, None, traced, args[4]), "digest") == key
+    counted = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, iters=4))  # within its cap
+    static = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, optimizer="lm"))
+    for same in (traced, counted):
+        assert program_key(run_chunk, (state, None, None, same, args[4]), "digest") == key
     assert program_key(run_chunk, (state, None, None, static, args[4]), "digest") != key
     assert program_key(run_chunk, args, "other digest") != key
     grown = dataclasses.replace(state, gaussians=state.gaussians.grow(2 * state.gaussians.capacity))

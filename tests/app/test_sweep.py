@@ -79,7 +79,8 @@ def test_expand_grid_is_the_product_of_the_axes_times_the_seeds_first_axis_slowe
     assert [(p.values["cbknn.params.alpha"], p.values["cbknn.params.k0"], p.seed) for p in points[:4]] == [
         ("0.1", "4", 0), ("0.1", "4", 1), ("0.1", "8", 0), ("0.1", "8", 1)]
     assert float(points[-1].config.cbknn.params.k0) == 16.0 and float(points[-1].config.cbknn.params.alpha) == 0.2
-    assert points[0].config == apply_overrides(tiny_config(), {"cbknn.params.alpha": "0.1", "cbknn.params.k0": "4"})
+    alone = apply_overrides(tiny_config(), {"cbknn.params.alpha": "0.1", "cbknn.params.k0": "4"})
+    assert points[0].config == alone.with_caps(alone.caps)  # the same values, the grid's common caps pinned
 
 
 def test_expand_grid_validates_values_like_an_override():
@@ -93,14 +94,42 @@ def test_expand_grid_validates_values_like_an_override():
 
 def test_traced_fields_share_one_program_and_a_static_field_gives_one_per_value():
     base = tiny_config()
-    traced = [parse_grid("cbknn.params.alpha=0.1,0.2"), parse_grid("noise.depth_cm=0,1")]
-    assert len(group_by_program(expand_grid(base, traced, [0, 1, 2]))) == 1
+    traced = [parse_grid("cbknn.params.alpha=0.1,0.2"), parse_grid("noise.depth_cm=0,1"),
+              parse_grid("cbknn.mode=off,code_parity,paper"), parse_grid("tracking.iters=3,50"),
+              parse_grid("mapping.strided_iters=0,4")]  # counts across caps: the sweep's common caps hold them all
+    assert len(group_by_program(expand_grid(base, traced, [0, 1]))) == 1
     assert static_fields(base, traced) == []
-    mixed = [parse_grid("tracking.iters=3,5"), parse_grid("tracking.lr_rot=0.001,0.002")]
+    mixed = [parse_grid("tracking.blur.radius_px=0,4"), parse_grid("tracking.lr_rot=0.001,0.002")]
     groups = group_by_program(expand_grid(base, mixed, [0]))
     assert [len(g) for g in groups] == [2, 2]
-    assert {g[0].values["tracking.iters"] for g in groups} == {"3", "5"}
-    assert static_fields(base, mixed) == ["tracking.iters"]
+    assert {g[0].values["tracking.blur.radius_px"] for g in groups} == {"0", "4"}
+    assert static_fields(base, mixed) == ["tracking.blur.radius_px"]
+
+
+@pytest.mark.parametrize("grid", [["--grid", "tracking.iters=2,4", "--grid", "mapping.iters=1,3"],
+                                  ["--grid", "cbknn.mode=off,code_parity,paper"]])
+def test_a_sweep_over_iteration_counts_or_cbknn_modes_runs_one_slam_program_and_equals_separate_runs(
+        grid, tmp_path, capsys, monkeypatch):
+    """The issue's grids: each value a traced leaf of one program. The programs the sweep calls are counted (each
+    would be a compilation in a fresh process), and its rows are the separate runs', bit for bit."""
+    from gsjax.app import programs
+
+    keys, key_of = [], programs.program_key
+    monkeypatch.setattr(programs, "program_key", lambda *a: keys.append(key_of(*a)) or keys[-1])
+    out = tmp_path / "sweep"
+    assert main(["sweep", "--out", str(out), *TINY_RUN, *grid]) == 0
+    assert len(set(keys)) == 1  # one SLAM program for every config
+    configs = len(read_sweep_csv(out / "sweep.csv"))
+    assert f"gsjax sweep: {configs} configs in 1 program(s)" in capsys.readouterr().out
+    rows = read_sweep_csv(out / "sweep.csv")
+    fields = [grid[i + 1].split("=")[0] for i in range(0, len(grid), 2)]
+    for row in (rows[0], rows[-1]):  # the grid's corners as separate `gsjax run`s
+        alone = tmp_path / f"alone{row['run'][-3:]}"
+        overrides = [t for f in fields for t in (f"--{f}", row[f])]
+        assert main(["run", "--out", str(alone), *TINY_RUN, *overrides]) == 0
+        assert (out / row["run"] / "trajectory.txt").read_bytes() == (alone / "trajectory.txt").read_bytes()
+    assert (out / rows[0]["run"] / "trajectory.txt").read_bytes() != (out / rows[-1]["run"] / "trajectory.txt"
+                                                                      ).read_bytes()
 
 
 def test_batch_size_bounds_the_batch_and_the_vmap_width_fills_the_devices():

@@ -124,20 +124,25 @@ def test_config_from_dict_rejects_unknown_keys():
 
 
 def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
-    """Changing a learning rate, loss weight or CB-KNN alpha/k0/beta keeps the treedef (no recompilation, vmap-able);
-    changing an iteration count, optimizer or mode changes it."""
+    """Changing a learning rate, loss weight, CB-KNN alpha/k0/beta, an iteration count within its cap or CB-KNN's
+    mode and switches keeps the treedef (no recompilation, vmap-able); changing a shape, the optimizer or a count
+    past its cap changes it."""
     base = preset("cpu")
     structure = jax.tree_util.tree_structure(base)
     traced = {"tracking.lr_trans": "0.01", "tracking.lambda_color": "0.3", "mapping.lr_rgb": "0.01",
               "densify.sil_threshold": "0.4", "cbknn.params.alpha": "0.5", "cbknn.params.k0": "3",
               "cbknn.params.beta": "0.1", "cbknn.lambda_color_keyframe": "0.7", "scene_radius_depth_ratio": "4",
               "mapping.clamp_rgb": "true", "tracking.blur.sigma_px": "1.5", "tracking.coarse.sigma_px": "2",
-              "noise.persistent_means_cm": "1", "noise.persistent_frame": "5"}
+              "noise.persistent_means_cm": "1", "noise.persistent_frame": "5", "tracking.iters": "5",
+              "tracking.strided_iters": "20", "tracking.reselect_every": "1", "tracking.stop.window": "3",
+              "mapping.iters": "25", "mapping.every": "2", "mapping.reselect_every": "10", "cbknn.mode": "paper",
+              "cbknn.track_keyframes": "false", "cbknn.map_keyframes": "false", "cbknn.densify": "false",
+              "cbknn.kf_overlap_smoothing": "true"}
     for name, value in traced.items():
         assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) == structure, name
-    static = {"tracking.iters": "5", "tracking.optimizer": "lm", "mapping.window_size": "4", "cbknn.mode": "paper",
+    static = {"tracking.iters": "33", "tracking.optimizer": "lm", "mapping.window_size": "4",
               "cbknn.params.k_max": "8", "keyframe_every": "3", "raster.max_contributors": "32",
-              "tracking.blur.radius_px": "4"}
+              "tracking.blur.radius_px": "4", "mapping.reselect_every": "1", "mapping.strided_iters": "10"}
     for name, value in static.items():
         assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) != structure, name
 

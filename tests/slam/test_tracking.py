@@ -149,7 +149,7 @@ def test_a_frame_with_a_nan_pixel_keeps_the_initial_pose_and_counts_nonfinite(re
 def test_reselect_every_chooses_contributors_at_every_rth_iteration_across_stages():
     """With ``reselect_every`` 5, 3 strided + 9 full iterations choose the contributors at iterations 0, 5 and 10
     (counted over both stages, at the pose of that iteration) and hand each iteration the latest choice; with 1
-    no selection is handed over (each render chooses its own)."""
+    every iteration chooses its own, at its pose. The count is traced: both run one program."""
     config = map_config()
     intrinsics = tiny_sequence().intrinsics
     chosen, handed = [], []
@@ -166,18 +166,20 @@ def test_reselect_every_chooses_contributors_at_every_rth_iteration_across_stage
             jax.debug.callback(lambda m: handed.append(int(m)), selection.tiles_overflowed)
         return jnp.sum((delta - jnp.asarray([0.01, 0, 0, 0, 0, 0])) ** 2)
 
-    for every, expected_selects in ((5, 3), (1, 0)):
+    @jax.jit
+    def run(w2c, tracking):
+        return _track_adam(loss, w2c, tracking, caps, lambda d, phase, sel: loss(d, sel), None, select)
+
+    base = dataclasses.replace(config.tracking, iters=9, strided_iters=3)
+    caps = dataclasses.replace(config, tracking=base).caps
+    for every, expected_selects in ((5, 3), (1, 12)):
         chosen.clear(), handed.clear()
-        tracking = dataclasses.replace(config.tracking, iters=9, strided_iters=3, reselect_every=every)
-        jax.block_until_ready(jax.jit(lambda w: _track_adam(loss, w, tracking, lambda d, phase, sel: loss(d, sel), (),
-                                                            select))(jnp.eye(4)))
+        jax.block_until_ready(run(jnp.eye(4), dataclasses.replace(base, reselect_every=every)))
         assert len(chosen) == expected_selects
-        if every == 5:
-            markers = [int(np.round(d[0] * 1e4)) for d in chosen]
-            assert markers[0] == 0 and len(set(markers)) == 3  # at the start pose, then at later poses
-            assert handed == [markers[i // 5] for i in range(12)]
-        else:
-            assert handed == []
+        markers = [int(np.round(d[0] * 1e4)) for d in chosen]
+        assert markers[0] == 0 and len(set(markers)) > 1  # at the start pose, then at later poses
+        assert handed == [markers[i // every] for i in range(12)]
+    assert run._cache_size() == 1
 
 
 def test_adam_skips_non_finite_iterations_and_keeps_the_best_finite_pose():
@@ -193,7 +195,7 @@ def test_adam_skips_non_finite_iterations_and_keeps_the_best_finite_pose():
         return jnp.where(delta[0] > 0.011, jnp.nan, jnp.sum((delta - target) ** 2))
 
     w2c_init = jnp.asarray(relative_gt_w2c()[TRUE_FRAME], jnp.float32)
-    result = jax.jit(lambda w: _track_adam(loss_fn, w, config.tracking))(w2c_init)
+    result = jax.jit(lambda w: _track_adam(loss_fn, w, config.tracking, config.caps))(w2c_init)
     best = np.asarray(se3_log(result.w2c @ jnp.linalg.inv(w2c_init)))
     # Adam's first steps have size lr: rho_x = 0.002 k after k steps, so the losses at k = 0..5 are finite and the
     # loss after the 6th step (rho_x = 0.012) is not: 6 finite iterations, 14 skipped, best at k = 5.
@@ -212,13 +214,15 @@ def test_early_stop_window_stops_once_the_loss_stops_falling_and_zero_runs_every
     def loss_fn(delta):
         return jnp.sum((delta - target) ** 2) + 1e-6
 
+    base = dataclasses.replace(config.tracking, iters=60, lr_trans=2e-3)
+    caps = dataclasses.replace(config, tracking=base).caps
+    run = jax.jit(lambda w, tracking: _track_adam(loss_fn, w, tracking, caps))
+
     def tracked(window):
-        tracking = dataclasses.replace(config.tracking, iters=60, lr_trans=2e-3,
-                                       stop=EarlyStop(window=window, rtol=1e-3))
-        run = jax.jit(lambda w: _track_adam(loss_fn, w, tracking))
-        return run(jnp.eye(4, dtype=jnp.float32))
+        return run(jnp.eye(4, dtype=jnp.float32), dataclasses.replace(base, stop=EarlyStop(window=window, rtol=1e-3)))
 
     full, stopped = tracked(0), tracked(3)
+    assert run._cache_size() == 1  # the window is traced
     assert int(full.iterations) == 60
     assert 6 <= int(stopped.iterations) < 30
     losses = [float(r.loss) for r in (full, stopped)]
@@ -381,7 +385,7 @@ def test_the_blurred_tracking_loss_is_the_l1_of_the_blurred_masked_residuals(ren
 
 
 def test_coarse_to_fine_runs_its_levels_first_at_halving_blur_and_keeps_a_full_iteration_s_pose(rendered_scene):
-    from gsjax.slam.tracking import coarse_losses, tracking_objective
+    from gsjax.slam.tracking import coarse_loss, tracking_objective
 
     gaussians, color, depth, w2c_true = rendered_scene
     w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["b"], jnp.float32)) @ w2c_true
@@ -390,15 +394,17 @@ def test_coarse_to_fine_runs_its_levels_first_at_halving_blur_and_keeps_a_full_i
         "tracking.blur.radius_px": "4", "tracking.coarse.iters": "31", "tracking.coarse.levels": "3",
         "tracking.coarse.sigma_px": "0.5", "tracking.reselect_every": "1"})
     problem = TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0)
-    levels = coarse_losses(problem, config)
+    coarse = coarse_loss(problem, config)
     zero = jnp.zeros(6, jnp.float32)
     view = tracking_objective(problem, config).view_at(zero)
     cfg = config.tracking
-    for level, sigma in zip(levels, (2.0, 1.0, 0.5)):
+    # 31 iterations over 3 levels: 11 (the remainder to the first), 10, 10
+    for its, sigma in (((0, 10), 2.0), ((11, 20), 1.0), ((21, 30), 0.5)):
         terms = TrackingTerms(cfg.lambda_color, cfg.lambda_depth, cfg.sil_threshold, cfg.normalized_depth, False,
                               sigma, 4)
         expected = tracking_loss(view, color, depth, terms)
-        np.testing.assert_allclose(float(level(zero)), float(expected), rtol=1e-6)
+        for it in its:
+            np.testing.assert_allclose(float(coarse(zero, jnp.int32(it))), float(expected), rtol=1e-6)
     result = track_jit(problem, config)
     assert int(result.iterations) == 31 + 20
     trans, rot = pose_error(result.w2c, w2c_true)

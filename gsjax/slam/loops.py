@@ -1,0 +1,185 @@
+"""Loops with a traced trip count under a static cap, so that one compiled program serves every iteration count.
+
+An iteration count is a traced config value (users sweep it); the program is compiled for a static *cap*
+(:func:`cap_for`: the next power of two, at least :data:`MIN_CAP`), so every count up to the cap runs the same
+program. :func:`counted_scan` runs such a loop in one of two forms, a static choice of the program
+(:attr:`LoopCaps.differentiable`):
+
+* a ``lax.while_loop`` that stops at the count (the default: what a SLAM run needs, forward only). It costs the
+  iterations run, nothing for the cap;
+* a ``lax.scan`` over the cap whose iterations from the count on are skipped by ``lax.cond``, for programs that
+  reverse mode must pass through (hypergradients differentiate through the tracker's iterations; a while loop has
+  no reverse mode). It costs more per iteration run: on XLA:CPU a SLAM step of the ``cpu`` preset took 21 % longer
+  with every loop in this form (frame 16 of the noisy synthetic room, 1256 against 1038 ms, medians of 9 interleaved
+  runs in one process), so a run does not use it.
+
+Under ``vmap`` with counts that differ between the batch entries, both forms run every entry until the largest
+count (the while loop's predicate and the cond's are then batched): a batched program costs its largest count.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gsjax.checks import is_checkable
+
+_Carry = TypeVar("_Carry")
+
+MIN_CAP = 32  # every count up to 32 (the cpu preset's, the tests') shares one program
+
+
+def cap_for(count: int) -> int:
+    """The static cap of a loop that runs ``count`` iterations: 0 for 0 (the loop is not compiled), else the
+    smallest power of two >= ``count`` and >= :data:`MIN_CAP`.
+
+    Args:
+      count: the iteration count (>= 0).
+
+    Returns:
+      The cap, an int.
+    """
+    count = int(count)
+    if count <= 0:
+        return 0
+    return max(MIN_CAP, 1 << (count - 1).bit_length())
+
+
+def counted_scan(body: Callable[[jax.Array, _Carry], _Carry], init: _Carry, count: int | jax.Array, cap: int,
+                 running: Callable[[_Carry], jax.Array] | None = None, differentiable: bool = False) -> _Carry:
+    """``min(count, cap)`` iterations of ``carry = body(i, carry)``, i = 0, 1, ...
+
+    With ``running``, the loop also stops before the first iteration where ``running(carry)`` is false (an early
+    stop). A ``lax.while_loop``, or with ``differentiable`` a ``lax.scan`` over ``cap`` iterations whose iterations
+    from the count (or the stop) on take the identity branch of a ``lax.cond`` (reverse mode passes through it).
+
+    Args:
+      body: ``body(i, carry) -> carry``, i a [] int32 (traced).
+      init: the carry before the first iteration.
+      count: the iterations to run (may be traced); at most ``cap`` run.
+      cap: the static bound (0: ``init`` is returned, nothing is compiled).
+      running: ``running(carry) -> [] bool``, whether to go on (an early stop); None: until ``count``.
+      differentiable: the scan form, for reverse mode (static).
+
+    Returns:
+      The carry after the iterations run.
+    """
+    if cap <= 0:
+        return init
+    if not differentiable:
+        def going(state):
+            i, carry = state
+            go = i < jnp.minimum(count, cap)
+            return go if running is None else go & running(carry)
+
+        return jax.lax.while_loop(going, lambda state: (state[0] + 1, body(*state)), (jnp.int32(0), init))[1]
+
+    def step(carry, i):
+        go = i < count
+        if running is not None:
+            go = go & running(carry)
+        return jax.lax.cond(go, lambda c: body(i, c), lambda c: c, carry), None
+
+    return jax.lax.scan(step, init, jnp.arange(cap, dtype=jnp.int32))[0]
+
+
+def loop_caps(config: Any) -> LoopCaps:
+    """``config.caps``, the static caps of a :class:`gsjax.slam.config.SlamConfig`'s loops.
+
+    Args:
+      config: the SLAM config.
+
+    Returns:
+      Its caps.
+
+    Raises:
+      ValueError: the config was built with traced iteration counts and no caps.
+    """
+    if config.caps is None:
+        raise ValueError("SlamConfig.caps is unset: build the config with concrete iteration counts (or give it caps, "
+                         "SlamConfig.with_caps) before tracing it")
+    return config.caps
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopCaps:
+    """The static part of a SLAM program's loops: each loop's cap (:func:`cap_for`; 0: not compiled), and whether
+    mapping carries a contributor selection per window view (``mapping.reselect_every`` > 1: a [V, K, P] buffer).
+
+    Derived from a config's traced counts (:meth:`of`) and held in its tree structure (``SlamConfig.caps``), so two
+    configs whose counts share the caps share one compiled program.
+
+    Attributes:
+      tracking: cap of the tracker's iterations on every pixel (``tracking.iters``).
+      tracking_strided: cap of its strided iterations (``tracking.strided_iters``).
+      tracking_coarse: cap of its coarse-to-fine iterations (``tracking.coarse.iters``, all levels).
+      mapping: cap of the mapping iterations on every pixel (``mapping.iters``).
+      mapping_strided: cap of the strided mapping iterations (``mapping.strided_iters``).
+      mapping_reselect: mapping chooses the window views' contributors every ``mapping.reselect_every`` iterations
+        and carries them in between.
+      differentiable: the loops take the form reverse mode passes through (:func:`counted_scan`: a scan over the
+        cap, slower per iteration), for programs that differentiate through them; False (a run): while loops.
+      pinned: given on purpose (:meth:`gsjax.slam.config.SlamConfig.with_caps`: kept, and raised only where a count
+        outgrows them); otherwise derived from the counts, and derived anew whenever the counts change.
+    """
+
+    tracking: int = 0
+    tracking_strided: int = 0
+    tracking_coarse: int = 0
+    mapping: int = 0
+    mapping_strided: int = 0
+    mapping_reselect: bool = False
+    differentiable: bool = False
+    pinned: bool = False
+
+    @staticmethod
+    def of(config: Any, exact: bool = False) -> LoopCaps | None:
+        """The caps a :class:`gsjax.slam.config.SlamConfig`'s counts need (the largest over a stacked batch of
+        configs); None when a count is traced (not concrete).
+
+        Args:
+          config: the SLAM config.
+          exact: each cap the count itself, not :func:`cap_for`'s (a batched program runs its whole cap).
+
+        Returns:
+          The caps, or None.
+        """
+        counts = (config.tracking.iters, config.tracking.strided_iters, config.tracking.coarse.iters,
+                  config.mapping.iters, config.mapping.strided_iters, config.mapping.reselect_every)
+        if not all(is_checkable(c) for c in counts):
+            return None
+        top = [int(np.max(np.asarray(c))) for c in counts]
+        bound = (lambda c: c) if exact else cap_for
+        return LoopCaps(tracking=bound(top[0]), tracking_strided=bound(top[1]), tracking_coarse=bound(top[2]),
+                        mapping=bound(top[3]), mapping_strided=bound(top[4]), mapping_reselect=top[5] > 1)
+
+    def union(self, other: LoopCaps) -> LoopCaps:
+        """Caps that hold both ``self``'s loops and ``other``'s (the larger cap of each loop).
+
+        Args:
+          other: the other caps.
+
+        Returns:
+          The caps, field by field the larger (or either flag).
+        """
+        return LoopCaps(*(max(a, b) for a, b in zip(dataclasses.astuple(self), dataclasses.astuple(other))))
+
+    def loops(self) -> LoopCaps:
+        """The caps without :attr:`pinned` and :attr:`differentiable` (the bounds alone)."""
+        return dataclasses.replace(self, differentiable=False, pinned=False)
+
+    def covers(self, other: LoopCaps) -> bool:
+        """Whether every loop of ``other`` fits in ``self``.
+
+        Args:
+          other: the caps needed.
+
+        Returns:
+          True when each of ``self``'s caps is at least ``other``'s (and each flag of ``other`` is set in ``self``).
+        """
+        return self.union(other).loops() == self.loops()
