@@ -20,6 +20,15 @@ def test_every_tutorial_is_in_the_site():
 @pytest.mark.parametrize("path", TUTORIALS, ids=lambda p: p.stem)
 def test_a_tutorial_runs_at_a_tiny_size(path, monkeypatch, capsys):
     monkeypatch.setenv("GSJAX_TUTORIAL_TINY", "1")
+    # slam.run as written, through the program `gsjax run` exports for the same config (the suite's tiny one): the
+    # same bits as the direct call (tests/app/test_programs.py), without compiling it a second time.
+    from gsjax import slam
+    from gsjax.app.compilation_cache import exported_call
+    from gsjax.slam import driver
+
+    direct = driver.run
+    monkeypatch.setattr(slam, "run", lambda *args, call=None, **kwargs: direct(*args, call=call or exported_call(),
+                                                                              **kwargs))
     matplotlib.use("Agg")  # plt.show() draws nothing
     import matplotlib.pyplot as plt
 

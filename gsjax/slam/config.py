@@ -1,9 +1,11 @@
 """SLAM configuration: frozen dataclass pytrees, validated when built.
 
-Hyperparameters that users sweep (learning rates, loss weights, thresholds, CB-KNN alpha/K0/beta) are *traced*
-leaves, so ``jax.vmap`` over a batch of configs runs one compiled program; iteration counts, window sizes, modes
-and flags are *static* (they set shapes or control flow). The named presets are in :mod:`gsjax.slam.presets`;
-overrides by dotted field name and the JSON round trip in :mod:`gsjax.config_text`.
+Hyperparameters that users sweep (learning rates, loss weights, thresholds, CB-KNN alpha/K0/beta, the iteration
+counts, CB-KNN's mode and where it acts) are *traced* leaves, so ``jax.vmap`` over a batch of configs runs one
+compiled program; an iteration count runs within a static cap (``SlamConfig.caps``, :mod:`gsjax.slam.loops`). Shapes
+(window size, contributor slots, tiles, a filter's radius), the optimizer and a few flags are *static*. The named
+presets are in :mod:`gsjax.slam.presets`; overrides by dotted field name and the JSON round trip in
+:mod:`gsjax.config_text`.
 """
 
 from __future__ import annotations
@@ -275,7 +277,7 @@ class SlamConfig:
         return dataclasses.replace(self, caps=dataclasses.replace(caps, pinned=True))
 
 
-# Every config class (a pytree), for serialisation of the exported programs (gsjax.app.programs).
+# Every config class (a pytree): the config reference and the checks cover them all (tests/test_config_fields.py).
 CONFIG_CLASSES = (SlamConfig, TrackingConfig, DivergenceGuard, EarlyStop, ImageBlur, CoarseToFine, Exposure,
                   MappingConfig, DensifyConfig, CBKNNConfig, NoiseConfig, RasterSettings, CBKNN)
 __all__ = ["BEST_POSE", "CONFIG_CLASSES", "SLAM_MAX_CONTRIBUTORS", "TRACKING_OPTIMIZERS", "CBKNNConfig",

@@ -26,7 +26,7 @@ from gsjax.camera import Intrinsics
 from gsjax.data.frame import Frame, stack_frames, to_device, without_ground_truth
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import SlamState, grow_capacity, initial_state, keyframe_capacity_for
-from gsjax.slam.system import StepOutputs, run_chunk
+from gsjax.slam.system import StepOutputs, run_chunk, unknown_poses
 
 if TYPE_CHECKING:
     from gsjax.data.sequence import Sequence as FrameSequence
@@ -234,8 +234,8 @@ def batch_chunk_loop(
       intrinsics: the camera at the frames' resolution.
       chunk: frames per jitted scan (C); a short last chunk is padded to it.
       start: the first frame to process (the groups' states are those after frames ``0 .. start - 1``).
-      poses: [total, 4, 4] known world-to-camera poses (m), indexed by frame, to map at instead of tracking; None
-        tracks.
+      poses: [total, 4, 4] known world-to-camera poses (m), indexed by frame, to map at instead of tracking (NaN
+        where not known: tracked); None tracks.
       on_grow: ``on_grow(group, dropped, first, last, new_capacity)`` is told before a group's chunk is re-run with a
         doubled capacity: the group's index, the Gaussians dropped over the chunk (all its entries), the chunk's
         first and last frame, the new capacity; None: nothing.
@@ -266,7 +266,8 @@ def batch_chunk_loop(
         count = len(host)
         t0 = time.perf_counter()
         frames, valid = pad_chunk(host, chunk)
-        chunk_poses: jax.Array | None = None
+        # Always an array (NaN where not known): tracking and mapping at known poses run one program.
+        chunk_poses = unknown_poses(chunk)
         if poses is not None:
             host_poses = np.asarray(poses[done:done + count], np.float32)
             chunk_poses = jnp.asarray(np.concatenate([host_poses, np.repeat(host_poses[-1:], chunk - count, 0)]))

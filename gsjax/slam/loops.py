@@ -135,7 +135,7 @@ class LoopCaps:
     mapping_strided: int = 0
     mapping_reselect: bool = False
     differentiable: bool = False
-    pinned: bool = False
+    pinned: bool = dataclasses.field(default=False, compare=False, repr=False)  # not part of the program
 
     @staticmethod
     def of(config: Any, exact: bool = False) -> LoopCaps | None:
@@ -167,11 +167,12 @@ class LoopCaps:
         Returns:
           The caps, field by field the larger (or either flag).
         """
-        return LoopCaps(*(max(a, b) for a, b in zip(dataclasses.astuple(self), dataclasses.astuple(other))))
+        bounds = {f.name: max(getattr(self, f.name), getattr(other, f.name)) for f in dataclasses.fields(self)}
+        return LoopCaps(**{**bounds, "pinned": self.pinned or other.pinned})
 
     def loops(self) -> LoopCaps:
-        """The caps without :attr:`pinned` and :attr:`differentiable` (the bounds alone)."""
-        return dataclasses.replace(self, differentiable=False, pinned=False)
+        """The caps without :attr:`differentiable` (the bounds alone)."""
+        return dataclasses.replace(self, differentiable=False)
 
     def covers(self, other: LoopCaps) -> bool:
         """Whether every loop of ``other`` fits in ``self``.

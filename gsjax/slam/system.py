@@ -154,7 +154,8 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
       config: the SLAM config.
       intrinsics: the camera at the frame's resolution.
       pose: [4, 4] world-to-camera pose (m) to map the frame at instead of tracking it (mapping-only studies,
-        e.g. a map built from ground truth); None tracks.
+        e.g. a map built from ground truth); a pose with a non-finite entry (NaN: not known) or None tracks. A known
+        pose is a traced choice: one program maps at known poses and tracks.
 
     Returns:
       state: the state after the frame.
@@ -175,9 +176,15 @@ def _no_outputs() -> StepOutputs:
                        diverged=no, nonfinite_gaussians=jnp.int32(0), tracking_iters=jnp.int32(0), depth_valid=zero)
 
 
+def _known(pose) -> jax.Array:
+    """[] bool: ``pose`` (a [4, 4] array or None) is a known pose to map at (every entry finite)."""
+    return jnp.bool_(False) if pose is None else jnp.all(jnp.isfinite(pose))
+
+
 def _coast(state: SlamState, frame: Frame, config: SlamConfig, pose) -> tuple[SlamState, StepOutputs]:
     """A frame without usable depth: the predicted (or known) pose, the map and keyframes untouched."""
-    w2c = orthonormalize(predicted_pose(state) if pose is None else pose)
+    predicted = predicted_pose(state)
+    w2c = orthonormalize(predicted if pose is None else jnp.where(_known(pose), pose, predicted))
     zero = jnp.float32(0.0)
     outputs = StepOutputs(w2c=w2c, tracking_loss=zero, mapping_loss=zero, num_gaussians=state.gaussians.num_active(),
                           added=jnp.int32(0), dropped=jnp.int32(0), keyframe=jnp.bool_(False),
@@ -204,20 +211,23 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
     key_window, key_map, key_next = jax.random.split(state.key, 3)
 
     with jax.named_scope("track"):
+        known = _known(pose)
+
         def do_track():
-            if pose is not None:
-                return GuardedTrack(pose, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False),
-                                    jnp.int32(0))
             seen = perturb_map(state.gaussians, config.noise, jax.random.fold_in(state.key, NOISE_STREAM + 1))
             return track_guarded(problem._replace(gaussians=seen), config, state.previous_tracking_loss)
 
-        def skip_track():
-            return GuardedTrack(w2c_init, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False),
-                                jnp.int32(0))
+        def at(w2c):
+            return lambda: GuardedTrack(w2c, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False),
+                                        jnp.int32(0))
 
-        tracked = jax.lax.cond(started, do_track, skip_track) if pose is None else do_track()
+        def unknown():  # tracked once the map exists; the first frame with depth keeps its prediction
+            return jax.lax.cond(started, do_track, at(w2c_init))
+
+        # A known pose is taken as it is (and nothing is tracked).
+        tracked = unknown() if pose is None else jax.lax.cond(known, at(jnp.where(known, pose, w2c_init)), unknown)
         w2c, tracking_loss, nonfinite = orthonormalize(tracked.w2c), tracked.loss, tracked.nonfinite
-        tracked_now = started & (pose is None) & ~tracked.diverged
+        tracked_now = started & ~known & ~tracked.diverged
 
     with jax.named_scope("densify"):
         smooth_densify = smooth & config.cbknn.densify
@@ -293,8 +303,9 @@ def run_chunk(state: SlamState, frames: Frame, valid: jax.Array, config: SlamCon
       valid: [C] bool, the real frames (False: padding).
       config: the SLAM config.
       intrinsics: the camera at the frames' resolution.
-      poses: [C, 4, 4] known world-to-camera poses (m) to map at instead of tracking (see :func:`step`); None
-        tracks.
+      poses: [C, 4, 4] known world-to-camera poses (m) to map at instead of tracking, NaN where a frame's pose is not
+        known (tracked; see :func:`step`); None tracks every frame. The shell always passes an array
+        (:func:`unknown_poses`), so that tracking and mapping at known poses are one program.
 
     Returns:
       state: the state after the chunk.
@@ -311,3 +322,15 @@ def run_chunk(state: SlamState, frames: Frame, valid: jax.Array, config: SlamCon
         return jax.lax.cond(is_real, one, skip, state, frame)
 
     return jax.lax.scan(body, state, (frames, valid, poses))
+
+
+def unknown_poses(count: int) -> jax.Array:
+    """[count, 4, 4] float32 NaN: no frame's pose known (:func:`run_chunk` tracks them all).
+
+    Args:
+      count: the frames.
+
+    Returns:
+      The poses, every entry NaN.
+    """
+    return jnp.full((count, 4, 4), jnp.nan, jnp.float32)

@@ -31,9 +31,10 @@ import jax.numpy as jnp
 import optax
 
 from gsjax.camera import Intrinsics, camera_center, perturb_left, rotation_angle
+from gsjax.config_fields import choice_is
 from gsjax.gaussians import Gaussians
 from gsjax.raster import select_slots
-from gsjax.slam.config import CoarseToFine, SlamConfig, TrackingConfig
+from gsjax.slam.config import BEST_POSE, CoarseToFine, SlamConfig, TrackingConfig
 from gsjax.slam.loops import LoopCaps, counted_scan, loop_caps
 from gsjax.slam.losses import TrackingTerms, tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
@@ -289,6 +290,7 @@ def _track_adam(loss_fn, w2c_init, cfg: TrackingConfig, caps: LoopCaps, strided_
     composite those (None: every render chooses its own). Each stage is a :func:`gsjax.slam.loops.counted_scan` within
     its cap in ``caps``."""
     optimizer = pose_optimizer(cfg)
+    post_step = choice_is(cfg.best_pose, "post_step", BEST_POSE)
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
 
@@ -300,7 +302,8 @@ def _track_adam(loss_fn, w2c_init, cfg: TrackingConfig, caps: LoopCaps, strided_
         updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grad), carry.opt_state)
         new_delta = optax.apply_updates(delta, updates)
         better = jnp.isfinite(loss) & (loss < carry.best_loss)
-        candidate = delta if cfg.best_pose == "pre_step" else new_delta
+        # pre_step keeps the pose whose loss this is; post_step (SplaTAM's off-by-one) the pose after its step.
+        candidate = jax.tree.map(lambda old, new: jnp.where(post_step, new, old), delta, new_delta)
         best_delta = jax.tree.map(lambda c, b: jnp.where(better, c, b), candidate, carry.best_delta)
         # Progress: the loss fell by stop.rtol below the loss of the last progress (the first finite loss is).
         progress = jnp.isfinite(loss) & (loss < carry.progress_loss * (1.0 - cfg.stop.rtol))

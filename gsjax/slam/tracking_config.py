@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from gsjax.checks import is_checkable
-from gsjax.config_fields import check_fields, param
+from gsjax.config_fields import check_fields, param, register_config
 
 TRACKING_OPTIMIZERS = ("adam", "lm")
 BEST_POSE = ("pre_step", "post_step")
@@ -121,7 +121,7 @@ class Exposure:
         check_fields(self, "tracking.exposure")
 
 
-@jax.tree_util.register_dataclass
+@register_config
 @dataclasses.dataclass(frozen=True)
 class TrackingConfig:
     """Camera tracking (method_spec A.6): a fixed number of iterations on the pose tangent (left perturbation).
@@ -172,7 +172,7 @@ class TrackingConfig:
     lambda_depth: float = param(1.0, "weight", low=0.0)
     sil_threshold: float = param(0.99, "ratio", low=0.0, high=1.0)
     lr_final_ratio: float = param(1.0, "ratio", low=0.0, low_open=True, high=1.0)
-    best_pose: str = param("pre_step", "choice", static=True, choices=BEST_POSE)
+    best_pose: str = param("pre_step", "choice", choices=BEST_POSE)
     normalized_depth: bool = param(False, "flag", static=True)
     strided_iters: int = param(0, "iterations", low=0)
     reselect_every: int = param(1, "iterations", low=1)

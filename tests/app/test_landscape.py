@@ -14,25 +14,28 @@ import pytest
 
 from gsjax.app.cli import main
 from gsjax.app.compilation_cache import exported_call
+from gsjax.config_text import apply_overrides
 from gsjax.data import open_sequence, write_tum
 from gsjax.data.frame import stack_frames, to_device
 from gsjax.slam import landscape as pure
 from gsjax.slam.driver import run as slam_run
 from gsjax.slam.losses import rendered_depth, tracking_mask
-from gsjax.slam.presets import preset, with_cbknn_mode
-from gsjax.slam.system import run_chunk
+from gsjax.slam.presets import with_cbknn_mode
+from gsjax.slam.system import run_chunk, unknown_poses
 from gsjax.slam.tracking import TrackingProblem, tracking_objective
-from tests.support.tiny_slam import CHUNK, FRAMES, relative_gt_w2c, tiny_sequence
+from tests.support.tiny_slam import CHUNK, FRAMES, TINY_OVERRIDES, relative_gt_w2c, tiny_config, tiny_sequence
 
 FRAME = 4
 STEPS = 5
-# The cpu preset's own iteration counts: the tiny tests' 2 mapping iterations leave a map whose loss is not lowest at
-# the ground-truth pose.
-RUN = ["--dataset", "synthetic", "--downscale", "4", "--chunk", str(CHUNK)]
+# The tiny tests' config (their SLAM program: the counts are traced) with 30 tracking and mapping iterations: the
+# tiny runs' 2 mapping iterations leave a map whose loss is not lowest at the ground-truth pose.
+COUNTS = {"tracking.iters": "30", "mapping.iters": "30"}
+OVERRIDES = [token for name, value in {**TINY_OVERRIDES, **COUNTS}.items() for token in (f"--{name}", value)]
+RUN = ["--dataset", "synthetic", "--downscale", "4", "--chunk", str(CHUNK), *OVERRIDES]
 
 
 def config():
-    return preset("cpu", 40)
+    return apply_overrides(tiny_config(), COUNTS)
 
 
 # The axes and their 2-D grid (steps^2 tracker runs more, in the same compiled program as the axes').
@@ -243,7 +246,7 @@ def test_without_ground_truth_the_reference_is_the_pose_slam_gives_frame_t(tmp_p
     # The axes and grid of the module's landscape (its compiled `off` program), without --map-from gt.
     landscape = [arg for arg in LANDSCAPE if arg not in ("--map-from", "gt")]
     assert main(["landscape", "--out", str(out), "--dataset", "tum", "--path", str(data), "--chunk", str(CHUNK),
-                 *landscape, "--modes", "off"]) == 0
+                 *OVERRIDES, *landscape, "--modes", "off"]) == 0
     doc = json.loads((out / "landscape.json").read_text())
     assert doc["reference"] == "tracked"
     sequence = open_sequence("tum", data)
@@ -254,6 +257,7 @@ def test_without_ground_truth_the_reference_is_the_pose_slam_gives_frame_t(tmp_p
     # SLAM's step on frame T: the scan of the same program over a chunk whose other frames are padding.
     chunk = to_device(stack_frames([frames[FRAME]] * CHUNK))
     valid = jnp.arange(CHUNK) == 0
-    _, outputs = exported_call()(run_chunk, state, chunk, valid, config(), sequence.intrinsics, None)
+    _, outputs = exported_call()(run_chunk, state, chunk, valid, config(), sequence.intrinsics,
+                                 unknown_poses(CHUNK))
     assert not bool(outputs.retried[0])
     np.testing.assert_allclose(np.asarray(doc["reference_w2c"]), np.asarray(outputs.w2c[0]), atol=2e-6)

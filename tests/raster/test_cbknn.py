@@ -126,9 +126,10 @@ CASES = {
 
 
 # every static configuration on at least two of the three image/capacity shapes (32x40/64, 32x40/1280, 45x60/64):
-# each (configuration, shape) pair is one compilation
+# each (configuration, shape) pair is one compilation. The default suite checks each configuration once, on
+# heavy_overlap (the one scene that has them all); the other shapes run in the slow suite.
 AGREEMENT = [
-    (name, case)
+    (name, case) if name == "heavy_overlap" else pytest.param(name, case, marks=pytest.mark.slow)
     for case, names in {
         "fixed-first_k-unit-hybrid": AGREEMENT_SCENES,
         "adaptive-first_k-unit-hybrid": AGREEMENT_SCENES,
@@ -189,8 +190,11 @@ def test_a_slot_whose_shifted_alpha_falls_below_the_threshold_is_still_composite
         np.testing.assert_allclose(got, want[low], rtol=0, atol=TIGHT_MAX, err_msg=field)
 
 
-@pytest.mark.parametrize("name", ["sparse_random", "heavy_overlap"])
-@pytest.mark.parametrize("select", ["first_k", "top_weight"])
+# Each (selection, scene) is a program: the default suite takes first_k on sparse_random and top_weight on
+# heavy_overlap (the zero-alpha identities below share those two), the slow one the other two.
+@pytest.mark.parametrize("name, select", [("sparse_random", "first_k"), ("heavy_overlap", "top_weight"),
+                                          pytest.param("heavy_overlap", "first_k", marks=pytest.mark.slow),
+                                          pytest.param("sparse_random", "top_weight", marks=pytest.mark.slow)])
 def test_position_only_smoothing_matches_the_reference(name, select):
     # colour=False isolates the sub-pixel shift of the centres (its effect on the image is small next to the
     # colour consensus, which dominates the other cases)
@@ -208,7 +212,9 @@ def test_position_only_smoothing_matches_the_reference(name, select):
 # ----------------------------------------------------------------------------------------------- stats
 
 
-@pytest.mark.parametrize("name", AGREEMENT_SCENES)
+@pytest.mark.parametrize("name", [  # the default suite: the two shapes it compiles anyway
+    n if n in ("sparse_random", "heavy_overlap") else pytest.param(n, marks=pytest.mark.slow)
+    for n in AGREEMENT_SCENES])
 def test_k_map_rho_map_and_fewer_than_k_fraction_match_the_reference(name):
     out, ref = render_and_reference(name, "ADAPTIVE")
     stats = out.stats.cbknn
@@ -224,16 +230,11 @@ def test_k_map_rho_map_and_fewer_than_k_fraction_match_the_reference(name):
 
 
 
-@pytest.mark.parametrize(
-    "name",
-    [
-        "sparse_random",
-        "heavy_overlap",
-        "dense_surface",
-        "rotated_camera",
-    ],
-)
-@pytest.mark.parametrize("shift_mode", ["unit", "fraction"])
+@pytest.mark.parametrize("name, shift_mode", [
+    ("heavy_overlap", "unit"), ("heavy_overlap", "fraction"), ("sparse_random", "unit"),
+    *(pytest.param(name, mode, marks=pytest.mark.slow) for name, mode in (
+        ("sparse_random", "fraction"), ("dense_surface", "unit"), ("dense_surface", "fraction"),
+        ("rotated_camera", "unit"), ("rotated_camera", "fraction")))])
 def test_mean_shift_px_is_the_mean_over_the_images_corrected_slots(name, shift_mode):
     out, ref = render_and_reference(name, "ADAPTIVE", shift_mode=shift_mode)
     got = float(out.stats.cbknn.mean_shift_px)
@@ -304,7 +305,8 @@ def assert_bitwise_equal_to_canonical(out, canonical, label: str) -> None:
 
 @pytest.mark.parametrize(
     "name, select",
-    [("sparse_random", "first_k"), ("heavy_overlap", "first_k"), ("heavy_overlap", "top_weight")],
+    [("sparse_random", "first_k"), pytest.param("heavy_overlap", "first_k", marks=pytest.mark.slow),
+     ("heavy_overlap", "top_weight")],
 )
 def test_zero_alpha_without_colour_consensus_equals_the_canonical_render(name, select):
     # alpha = 0 moves no centre (u' = u + 0 * dir); colour=False keeps every colour: the canonical walk remains
@@ -313,7 +315,8 @@ def test_zero_alpha_without_colour_consensus_equals_the_canonical_render(name, s
     assert_bitwise_equal_to_canonical(out, canonical_render(name), f"{name} {select}")
 
 
-@pytest.mark.parametrize("name, select", [("sparse_random", "first_k"), ("heavy_overlap", "top_weight")])
+@pytest.mark.parametrize("name, select", [("sparse_random", "first_k"),
+                                          pytest.param("heavy_overlap", "top_weight", marks=pytest.mark.slow)])
 def test_no_position_and_no_colour_smoothing_equals_the_canonical_render(name, select):
     gaussians, w2c, intr, _ = scene(name)
     out = render_cbknn(gaussians, w2c, intr, ADAPTIVE, position=False, colour=False, select=select)
@@ -384,7 +387,7 @@ def paper_literal_first_k(gaussians, w2c, intr, k: int, alpha: float, eps: float
     return out
 
 
-@pytest.mark.parametrize("name", ["sparse_random", "heavy_overlap"])
+@pytest.mark.parametrize("name", [pytest.param("sparse_random", marks=pytest.mark.slow), "heavy_overlap"])
 def test_truncate_equals_the_paper_literal_first_k_compositing(name):
     gaussians, w2c, intr, full = scene(name)
     out, ref = render_and_reference(name, "FIXED", truncate=True)
@@ -467,7 +470,11 @@ GRAD_CASES = {
 }
 
 
-@pytest.mark.parametrize("case", sorted(GRAD_CASES))
+# The default suite differentiates both selections and shift modes, hybrid and truncated (grad_sparse); the scenes
+# that probe off-screen slots and the stop rule under CB-KNN run in the slow suite (the canonical gradient tests
+# cover both).
+@pytest.mark.parametrize("case", [case if case.startswith("grad_sparse") else pytest.param(case, marks=pytest.mark.slow)
+                                  for case in sorted(GRAD_CASES)])
 def test_cbknn_gradients_match_finite_differences_of_the_reference(case):
     name, params, static = GRAD_CASES[case]
     gaussians, w2c, intr = scenes.GRADIENT_SCENES[name](GRAD_SEED)

@@ -59,7 +59,9 @@ def assert_same_discrete_state(a, b, label):
         assert x.shape == y.shape and np.array_equal(x, y), f"{label}: discrete state {i} differs: h too large"
 
 
-@pytest.mark.parametrize("backend", ["xla", "pallas"])  # pallas: its jvp runs on the XLA path (for_forward_mode)
+# pallas: its jvp runs on the XLA path (for_forward_mode); interpreted, in the slow suite (the default one compares its
+# gradient with XLA's in test_pallas.py and differences the composite kernel on its own).
+@pytest.mark.parametrize("backend", ["xla", pytest.param("pallas", marks=pytest.mark.slow)])
 @pytest.mark.parametrize("name", sorted(scenes.GRADIENT_SCENES))
 def test_gradients_match_finite_differences_of_the_reference(name, backend):
     render_settings = RasterSettings(backend=backend)
@@ -170,7 +172,9 @@ def test_jit_gives_the_same_render_as_eager_execution():
     _assert_renders_equal(jitted, eager, "jit vs eager")
 
 
-@pytest.mark.parametrize("tiles_per_batch", [1, 3, 7])  # 20 tiles: 20 x 1, 7 x 3 (+1 padding), 3 x 7 (+1)
+# 20 tiles: 20 x 1, 7 x 3 (+1 padding), 3 x 7 (+1); a program each: 3 (uneven, padded) in the default suite.
+@pytest.mark.parametrize("tiles_per_batch", [pytest.param(1, marks=pytest.mark.slow), 3,
+                                             pytest.param(7, marks=pytest.mark.slow)])
 def test_selection_in_batches_of_tiles_gives_the_same_render(tiles_per_batch):
     gaussians, w2c, intr = scenes.sparse_random(0)
     whole = render(gaussians, w2c, intr, RasterSettings())

@@ -167,7 +167,14 @@ def test_walk_kernel_selects_the_first_k_contributors_the_stop_rule_allows():
 # ----------------------------------------------------------------------------------------------- whole renders
 
 
-@pytest.mark.parametrize("name", sorted(scenes.SCENES))
+# One interpreted render per kernel in the default suite (both kernels run in a render); the other scenes, and every
+# other interpreted render below (truncation, CB-KNN, batches, vmap, forward mode, LM), run in the slow suite: they
+# take 10-30 s each to compile in interpret mode, and the XLA path's own tests cover what they compare against.
+SLOW = pytest.mark.slow
+
+
+@pytest.mark.parametrize("name", [n if n == "dense_surface" else pytest.param(n, marks=SLOW)
+                                  for n in sorted(scenes.SCENES)])
 def test_pallas_render_equals_the_xla_render_and_the_float64_reference(name):
     xla, pallas = both(name)
     assert_same_render(xla, pallas, name)
@@ -178,11 +185,11 @@ def test_pallas_render_equals_the_xla_render_and_the_float64_reference(name):
     assert_within_tolerance(f"{name} pallas", errs)
 
 
+@SLOW
 @pytest.mark.parametrize(
     "name, overrides",
     [("heavy_overlap", dict(max_contributors=8)), ("dense_surface", dict(max_contributors=16)),
-     ("heavy_overlap", dict(tile_size=16, tile_capacity=16)),
-     pytest.param("dense_surface", dict(tile_capacity=64), marks=pytest.mark.slow)],  # 8 s; tile lists: the above
+     ("heavy_overlap", dict(tile_size=16, tile_capacity=16)), ("dense_surface", dict(tile_capacity=64))],
 )
 def test_truncation_is_reported_the_same_way(name, overrides):
     xla, pallas = both(name, **overrides)
@@ -190,6 +197,7 @@ def test_truncation_is_reported_the_same_way(name, overrides):
     assert_same_render(xla, pallas, f"{name} {overrides}")
 
 
+@SLOW
 @pytest.mark.parametrize(
     "name, case", [("dense_surface", c) for c in sorted(CBKNN_CASES)] + [("heavy_overlap", "adaptive")]
 )
@@ -256,10 +264,10 @@ def assert_same_gradients(a, b, label):
         assert np.abs(x - y).max() <= GRAD_TOL * scale, f"{label}: {field} rel {np.abs(x - y).max() / scale:.2e}"
 
 
-# 9-11 s each: truncate_fraction's gradient in the slow suite (its render and statistics are compared above).
-@pytest.mark.parametrize("name, case", [("dense_surface", None), ("dense_surface", "adaptive"),
-                                        pytest.param("dense_surface", "truncate_fraction", marks=pytest.mark.slow),
-                                        ("sparse_random", None)])
+# 9-11 s each: the canonical render's backward pass in the default suite, the others in the slow one.
+@pytest.mark.parametrize("name, case", [("dense_surface", None), pytest.param("dense_surface", "adaptive", marks=SLOW),
+                                        pytest.param("dense_surface", "truncate_fraction", marks=SLOW),
+                                        pytest.param("sparse_random", None, marks=SLOW)])
 def test_gradients_are_the_same_on_both_backends(name, case):
     cb = None if case is None else CBKNN(**CBKNN_CASES[case])
     xla = gradients(name, RasterSettings(backend="xla"), cb)
@@ -270,7 +278,8 @@ def test_gradients_are_the_same_on_both_backends(name, case):
 # ----------------------------------------------------------------------------------------------- bounded memory
 
 
-@pytest.mark.parametrize("backend, case", [("xla", "adaptive"), ("pallas", None), ("pallas", "adaptive")])
+@pytest.mark.parametrize("backend, case", [("xla", "adaptive"), pytest.param("pallas", None, marks=SLOW),
+                                           pytest.param("pallas", "adaptive", marks=SLOW)])
 def test_compositing_in_batches_of_tiles_gives_the_same_render_and_gradients(backend, case):
     # dense_surface: 20 tiles of 64 px, K = 64; 20000 slots per batch -> 5 batches of 4 tiles.
     name, small = "dense_surface", 20000
@@ -290,6 +299,7 @@ def test_compositing_in_batches_of_tiles_gives_the_same_render_and_gradients(bac
 # ----------------------------------------------------------------------------------------------- transformations
 
 
+@SLOW
 def test_vmap_over_cbknn_parameters_on_the_pallas_path_equals_each_render():
     gaussians, w2c, intr = scenes.SCENES["dense_surface"](0)
     s = RasterSettings(backend="pallas")
@@ -302,6 +312,7 @@ def test_vmap_over_cbknn_parameters_on_the_pallas_path_equals_each_render():
     assert np.abs(np.asarray(out.color[0]) - np.asarray(out.color[1])).max() > 1e-3
 
 
+@SLOW
 def test_vmap_of_the_pose_gradient_over_cbknn_parameters_on_the_pallas_path():
     # What a sweep's tracking does: jax.grad w.r.t. the pose inside jax.vmap over CB-KNN parameters.
     gaussians, w2c, intr = scenes.SCENES["dense_surface"](0)
@@ -323,6 +334,7 @@ def test_vmap_of_the_pose_gradient_over_cbknn_parameters_on_the_pallas_path():
     assert np.abs(np.asarray(batched[0] - batched[1])).max() > 1e-3
 
 
+@SLOW  # the default suite checks that for_forward_mode() gives the XLA path (test_auto_backend_is_xla_...)
 def test_forward_mode_needs_the_xla_path_and_for_forward_mode_gives_it():
     gaussians, w2c, intr = scenes.SCENES["sparse_random"](0)
 
@@ -339,6 +351,7 @@ def test_forward_mode_needs_the_xla_path_and_for_forward_mode_gives_it():
     np.testing.assert_allclose(float(by_jvp), float(by_grad), rtol=GRAD_TOL)
 
 
+@SLOW
 def test_the_lm_tracker_runs_with_pallas_settings_and_tracks_as_with_xla():
     from gsjax.camera import camera_center
     from gsjax.slam.config import SlamConfig, TrackingConfig

@@ -10,20 +10,20 @@ import numpy as np
 import pytest
 
 from gsjax import slam
+from gsjax.app.compilation_cache import exported_call
 from gsjax.config_text import apply_overrides
 from gsjax.data.frame import Frame, stack_frames
 from gsjax.gaussians import Gaussians
 from gsjax.slam.config import NoiseConfig
 from gsjax.slam.noise import add_depth_noise, perturb_map, perturb_stored_map
-from gsjax.slam.system import run_chunk
 from tests.support.tiny_slam import (
     CHUNK,
     FRAMES,
     all_finite,
     assert_trees_equal,
     frames,
-    initial,
     relative_gt_w2c,
+    scan,
     tiny_config,
     tiny_sequence,
     trees_differ,
@@ -31,17 +31,15 @@ from tests.support.tiny_slam import (
 
 
 def run_tiny(config=None, seed=0, poses=None, source=None):
+    """``gsjax.slam.run`` of the tiny sequence through the suite's exported program (one compilation for all; the
+    direct call gives the same bits, test_programs)."""
     return slam.run(tiny_sequence() if source is None else source, config or tiny_config(),
-                    tiny_sequence().intrinsics, seed=seed, poses=poses, chunk=CHUNK)
+                    tiny_sequence().intrinsics, seed=seed, poses=poses, chunk=CHUNK, call=exported_call())
 
 
 def test_slam_run_equals_the_chunked_scan_bit_for_bit():
     result = run_tiny()
-    state, first = run_chunk(initial(), frames(0, CHUNK), jnp.ones(CHUNK, bool), tiny_config(),
-                             tiny_sequence().intrinsics)
-    state, second = run_chunk(state, frames(CHUNK, FRAMES), jnp.ones(CHUNK, bool), tiny_config(),
-                              tiny_sequence().intrinsics)
-    expected = jax.tree_util.tree_map(lambda a, b: np.concatenate([a, b]), first, second)
+    state, expected = scan(frames(0, FRAMES))
     assert_trees_equal(result.outputs, expected)
     assert_trees_equal(result.state, state)
     np.testing.assert_array_equal(result.w2c, np.asarray(expected.w2c))

@@ -12,7 +12,6 @@ import numpy as np
 
 from gsjax.camera import constant_velocity, orthonormalize, se3_exp
 from gsjax.config_text import apply_overrides
-from gsjax.slam.system import run_chunk
 from gsjax.slam.tracking import TrackingProblem, track, track_guarded, within_step_bound
 from tests.support.tiny_slam import (
     CHUNK,
@@ -20,16 +19,10 @@ from tests.support.tiny_slam import (
     all_finite,
     assert_trees_equal,
     frames,
-    initial,
+    scan,
     tiny_config,
     tiny_sequence,
 )
-
-
-def scan(chunk, config=None, state=None, valid=None):
-    config = config or tiny_config()
-    valid = jnp.ones(chunk.depth.shape[0], bool) if valid is None else valid
-    return run_chunk(initial() if state is None else state, chunk, valid, config, tiny_sequence().intrinsics)
 
 
 def test_non_finite_pixels_are_invalid_pixels():

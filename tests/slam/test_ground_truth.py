@@ -22,8 +22,10 @@ RUN_OPTIONS = ["--chunk", str(CHUNK), "--no-progress"] + [
     token for name, value in TINY_OVERRIDES.items() for token in (f"--{name}", value)]
 
 
-def run(dataset: str, path: Path, out: Path) -> dict:
-    assert main(["run", "--dataset", dataset, "--path", str(path), "--out", str(out)] + RUN_OPTIONS) == 0
+def run(dataset: str, path: Path, out: Path, downscale: int = 1) -> dict:
+    """``gsjax run`` as the tiny tests run it: 40x30 frames, the tiny config (the suite's one SLAM program)."""
+    argv = ["run", "--dataset", dataset, "--path", str(path), "--out", str(out), "--downscale", str(downscale)]
+    assert main(argv + RUN_OPTIONS) == 0
     return json.loads((out / "metrics.json").read_text())
 
 
@@ -40,9 +42,10 @@ def rigidity(c2w: np.ndarray) -> float:
     return float(np.abs(c2w[:3, :3].T @ c2w[:3, :3] - np.eye(3)).max())
 
 
-def assert_same_slam(dataset: str, with_gt: Path, without_gt: Path, tmp_path: Path) -> None:
+def assert_same_slam(dataset: str, with_gt: Path, without_gt: Path, tmp_path: Path, downscale: int = 1) -> None:
     gt_c2w = open_sequence(dataset, with_gt).gt_trajectory()[1]
-    metrics, metrics_no_gt = run(dataset, with_gt, tmp_path / "gt"), run(dataset, without_gt, tmp_path / "no_gt")
+    metrics = run(dataset, with_gt, tmp_path / "gt", downscale)
+    metrics_no_gt = run(dataset, without_gt, tmp_path / "no_gt", downscale)
     assert metrics["trajectory"]["num_evaluated"] == FRAMES and metrics_no_gt["trajectory"] is None
     assert per_frame_outputs(tmp_path / "gt") == per_frame_outputs(tmp_path / "no_gt")  # w2c included, bit for bit
     assert (tmp_path / "gt" / "map.ply").read_bytes() == (tmp_path / "no_gt" / "map.ply").read_bytes()
@@ -79,4 +82,4 @@ def test_sevenscenes_kitchen_with_and_without_ground_truth(tmp_path):
         for k in range(FRAMES):
             for kind in kinds:
                 shutil.copy(source / f"frame-{k:06d}.{kind}", folder)
-    assert_same_slam("7scenes", with_gt, without_gt, tmp_path)
+    assert_same_slam("7scenes", with_gt, without_gt, tmp_path, downscale=16)  # 640x480 -> 40x30, the tiny shape

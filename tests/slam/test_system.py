@@ -13,7 +13,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsjax.app.compilation_cache import exported_call
 from gsjax.camera import constant_velocity, orthonormalize
 from gsjax.config_text import apply_overrides
 from gsjax.data.frame import without_ground_truth
@@ -28,6 +27,7 @@ from tests.support.tiny_slam import (
     assert_trees_equal,
     frames,
     initial,
+    scan,
     tiny_config,
     tiny_sequence,
     trees_differ,
@@ -35,10 +35,9 @@ from tests.support.tiny_slam import (
 
 
 def run_chunk(state, chunk, valid, config, intrinsics):
-    """:func:`gsjax.slam.system.run_chunk` through the program ``gsjax run`` exports for the same config and shapes
-    (the CLI tests' program: one compilation for both; the exported and the direct call give the same bits,
-    test_programs)."""
-    return exported_call()(system.run_chunk, state, chunk, valid, config, intrinsics, None)
+    """The SLAM scan over the stacked frames ``chunk`` from ``state``, in chunks of CHUNK through the suite's one
+    program (:func:`tests.support.tiny_slam.scan`)."""
+    return scan(chunk, config, state, valid)
 
 
 def concat(*outputs):
@@ -61,33 +60,26 @@ def run_first_chunk(mode: str = "off", seed: int = 0, overrides: tuple = ()):
 
 @pytest.fixture(scope="module")
 def whole_run():
-    """All FRAMES frames in one chunk."""
+    """All FRAMES frames, in chunks of CHUNK."""
     return run_chunk(initial(), frames(0, FRAMES), jnp.ones(FRAMES, bool), tiny_config(), tiny_sequence().intrinsics)
 
 
-def test_two_chunks_give_bit_for_bit_the_state_and_outputs_of_one_chunk(whole_run):
-    intrinsics, config = tiny_sequence().intrinsics, tiny_config()
-    first_state, first_out = run_first_chunk()
-    state, second_out = run_chunk(first_state, frames(CHUNK, FRAMES), jnp.ones(FRAMES - CHUNK, bool), config,
-                                  intrinsics)
+def test_chunks_cut_anywhere_give_bit_for_bit_the_state_and_outputs_of_the_whole_run(whole_run):
+    """Chunks of 1, 3 and 2 frames (the short ones padded as the runner pads the last chunk) against chunks of 3."""
+    state, out = scan(frames(0, FRAMES), cuts=(1, 4))
     assert_trees_equal(state, whole_run[0])
-    assert_trees_equal(concat(first_out, second_out), whole_run[1])
+    assert_trees_equal(out, whole_run[1])
 
 
 def test_padding_frames_leave_the_state_untouched_and_output_zeros(whole_run):
     intrinsics, config = tiny_sequence().intrinsics, tiny_config()
     first_state, _ = run_first_chunk()
-    # A short last chunk (frames 3, 4) padded with a copy of frame 4, as the runner pads it ...
-    chunk = jax.tree_util.tree_map(lambda x: x[jnp.array([0, 1, 1])], frames(CHUNK, FRAMES))
-    state, out = run_chunk(first_state, chunk, valid(True, True, False), config, intrinsics)
-    # ... equals five frames of the one-chunk program with its last entry marked invalid, and the first five
-    # frames of the whole run.
-    five_state, five_out = run_chunk(initial(), frames(0, FRAMES), valid(True, True, True, True, True, False),
-                                     config, intrinsics)
+    # Frames 3 and 4 followed by a frame marked invalid ...
+    state, out = run_chunk(first_state, frames(CHUNK, FRAMES), valid(True, True, False), config, intrinsics)
+    # ... are frames 3 and 4 of the whole run, and the padding frame's outputs are zeros.
     assert int(state.frame) == 5
-    assert_trees_equal(state, five_state)
-    assert_trees_equal(jax.tree_util.tree_map(lambda x: x[:5], five_out),
-                       jax.tree_util.tree_map(lambda x: x[:5], whole_run[1]))
+    assert_trees_equal(jax.tree_util.tree_map(lambda x: x[:2], out),
+                       jax.tree_util.tree_map(lambda x: x[CHUNK:5], whole_run[1]))
     for leaf in jax.tree_util.tree_leaves(out):
         assert not np.any(np.asarray(leaf[2]))
     # An all-padding chunk is a no-op.
@@ -118,15 +110,17 @@ def stack(a, b):
     return jax.tree_util.tree_map(lambda x, y: jnp.stack([jnp.asarray(x), jnp.asarray(y)]), a, b)
 
 
-@pytest.mark.parametrize("mode", ["off", pytest.param("paper", marks=pytest.mark.slow)])  # paper: 45-55 s
+# Slow (a vmapped program of its own): the default suite's vmapped sweep (tests/app/test_sweep.py) checks the same.
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["off", "paper"])
 def test_vmap_over_configs_and_states_equals_the_separate_runs(mode):
     """One program over a batch of two configs (traced fields differ) and two initial states (seeds differ); in
     ``paper`` mode CB-KNN acts on keyframe 0's densification and mapping and on the alpha that differs."""
     config_a = tiny_config(mode)
     config_b = apply_overrides(config_a, dict(SWEPT))
     configs, states = stack(config_a, config_b), stack(initial(0), initial(1))
-    batched = jax.vmap(system.run_chunk, in_axes=(0, None, None, 0, None))(
-        states, frames(0, CHUNK), jnp.ones(CHUNK, bool), configs, tiny_sequence().intrinsics
+    batched = jax.vmap(system.run_chunk, in_axes=(0, None, None, 0, None, None))(
+        states, frames(0, CHUNK), jnp.ones(CHUNK, bool), configs, tiny_sequence().intrinsics, None
     )
     separate = [run_first_chunk(mode, 0), run_first_chunk(mode, 1, SWEPT)]
     for i, expected in enumerate(separate):

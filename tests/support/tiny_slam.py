@@ -21,6 +21,7 @@ from gsjax.data.frame import Frame, stack_frames, to_device
 from gsjax.data.sequence import Sequence
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.slam.config import SlamConfig
+from gsjax.slam.loops import LoopCaps
 from gsjax.slam.presets import preset, with_cbknn_mode
 from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
 
@@ -120,10 +121,16 @@ def all_finite(tree) -> bool:
 MAP_VIEWS = (0, 2)  # frames in the mapping window of the map fixtures (GT poses)
 
 
+# The loop caps of the map and tracker tests' programs: any of their iteration counts (strided or not, contributors
+# chosen once or every iteration) runs one program per optimizer.
+MAP_CAPS = LoopCaps(tracking=64, tracking_strided=64, mapping=32, mapping_strided=32, mapping_reselect=True)
+
+
 def map_config() -> SlamConfig:
-    """The ``cpu`` preset (normalised-depth tracking) with 30 mapping iterations, every iteration on every pixel."""
+    """The ``cpu`` preset (normalised-depth tracking) with 30 mapping iterations, every iteration on every pixel,
+    compiled for :data:`MAP_CAPS`."""
     return apply_overrides(preset("cpu"), {"mapping.iters": "30", "mapping.strided_iters": "0",
-                                           "tracking.strided_iters": "0"})
+                                           "tracking.strided_iters": "0"}).with_caps(MAP_CAPS)
 
 
 def first_frame_map():
@@ -164,3 +171,42 @@ def run_map_window(gaussians, seed: int = 0, config: SlamConfig | None = None, f
     return _map_window_jit()(jax.random.PRNGKey(seed), gaussians, window_frames(), tiny_sequence().intrinsics, config,
                              scene_radius(config), jnp.asarray(first_map))
 
+
+
+# ------------------------------------------------------------------------------ the one SLAM program of the suite
+
+
+def scan(stacked: Frame, config: SlamConfig | None = None, state: SlamState | None = None, valid=None,
+         cuts: tuple[int, ...] | None = None) -> tuple[SlamState, object]:
+    """``run_chunk`` over ``stacked`` frames (any number) in chunks of CHUNK, each through the program ``gsjax run``
+    exports for the tiny config (so the whole suite compiles it once; exported and direct calls give the same bits,
+    test_programs).
+
+    Args:
+      stacked: a stacked Frame of T frames.
+      config: the config (:func:`tiny_config` by default).
+      state: the state to start from (:func:`initial` by default).
+      valid: [T] bool, the real frames (default all); False frames are padding.
+      cuts: where chunks end (frame indices, increasing); default every CHUNK frames. A chunk of fewer frames is
+        padded to CHUNK with copies of its last frame, marked invalid, as the runner pads the last chunk.
+
+    Returns:
+      (the state after the frames, their StepOutputs [T, ...]).
+    """
+    from gsjax.app.compilation_cache import exported_call
+    from gsjax.slam.system import run_chunk
+
+    count = int(stacked.depth.shape[0])
+    valid = jnp.ones(count, bool) if valid is None else jnp.asarray(valid, bool)
+    bounds = [0, *(cuts if cuts is not None else range(CHUNK, count, CHUNK)), count]
+    state = initial() if state is None else state
+    config = tiny_config() if config is None else config
+    parts = []
+    for begin, end in zip(bounds[:-1], bounds[1:]):
+        assert 0 < end - begin <= CHUNK, (begin, end)
+        index = jnp.minimum(jnp.arange(begin, begin + CHUNK), end - 1)
+        chunk = jax.tree_util.tree_map(lambda x, index=index: x[index], stacked)
+        real = valid[index] & (jnp.arange(CHUNK) < end - begin)
+        state, out = exported_call()(run_chunk, state, chunk, real, config, tiny_sequence().intrinsics, None)
+        parts.append(jax.tree_util.tree_map(lambda x, n=end - begin: x[:n], out))
+    return state, jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *parts)
