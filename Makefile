@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo -n)
 APT    := DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get -y -q
 
-.PHONY: install chromium demo lint test test-slow bench gpu-aot clean config-reference metrics-reference docs
+.PHONY: install chromium demo lint test test-slow bench gpu-aot clean config-reference metrics-reference docs docs-quick
 
 install: $(STAMP)
 
@@ -34,7 +34,7 @@ demo: install
 # at a time so its module fixtures are built once; TEST_WORKERS=0: one process). (LLVM at -O0 compiled 25 % faster
 # but broke the bitwise CB-KNN-equals-canonical tests: not used.)
 TEST_WORKERS ?= 2
-test: install chromium lint docs
+test: install chromium lint docs-quick
 	$(BIN)/python -m pytest -q -m "not slow" $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile) tests
 
 # ruff and mypy (both configured in pyproject.toml; mypy on the core and the evaluation); `make test` runs them first.
@@ -47,6 +47,12 @@ lint: install
 # .cache/, where mkdocs-jupyter keeps them; GSJAX_DOCS_EXECUTE=false skips them: about 5 s). The site goes to site/.
 docs: install
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
+
+# What `make test` builds: the same strict site without running the tutorials (the suite runs them at a tiny size,
+# tests/test_tutorials.py); the stamp tells the browser test not to look for their figures.
+docs-quick: install
+	GSJAX_DOCS_EXECUTE=false NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
+	touch site/.tutorials-not-run
 
 # The config reference (every field's unit, static/traced, bounds, default per preset, meaning) is generated from the
 # field declarations; tests/test_config_fields.py fails when the committed file differs.

@@ -4,7 +4,8 @@
 1. The map: SLAM over frames 0..T-1 (:func:`gsjax.slam.run`; ``--map-from gt`` maps them at their ground-truth
    poses instead, so the map has no tracking error).
 2. The reference pose: frame T's ground-truth pose (in the SLAM world frame, the first camera), or, without ground
-   truth, the pose the tracker gives frame T from the constant-velocity prediction.
+   truth, the pose SLAM's step gives frame T (the tracker from the constant-velocity prediction, guarded), one more
+   chunk of the map's program.
 3. Along each axis, at every grid offset: the tracking loss and its ``jax.grad`` (:mod:`gsjax.slam.landscape`), and
    whether the tracker started there returns to within 0.5 cm / 0.5 deg of the reference (``basin``) and of its
    own fixed point, where it ends when started at the reference (``basin_fixed``: without the map's bias), for
@@ -41,10 +42,10 @@ from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
 from gsjax.slam import landscape as pure
 from gsjax.slam.config import SlamConfig
+from gsjax.slam.driver import pad_chunk
 from gsjax.slam.driver import run as slam_run
 from gsjax.slam.presets import with_cbknn_mode, with_coarse_to_fine, with_image_smoothing
-from gsjax.slam.system import tracking_problem
-from gsjax.slam.tracking import track
+from gsjax.slam.system import run_chunk, tracking_problem, unknown_poses
 
 # mode -> (its tracking config from the run's, whether frame T renders smoothed (CB-KNN, as on a keyframe)). A mode
 # is one line here.
@@ -137,10 +138,11 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     gamma = problem.gamma
     if relative_gt is not None:
         reference, w2c_ref = "gt", jnp.asarray(relative_gt[t], jnp.float32)
-    else:  # what SLAM's step would give frame T: the tracker from the constant-velocity prediction
+    else:  # what SLAM's step gives frame T: one more chunk of the map's own program, frame T then padding
         # As a host array, like the ground truth: the landscape's program is then the same for both references
         # (a device result is committed, and jit compiles anew for committed arguments).
-        reference, w2c_ref = "tracked", jnp.asarray(np.asarray(_track(problem, config).w2c))
+        reference, w2c_ref = "tracked", jnp.asarray(np.asarray(_stepped_pose(built.state, frames[t], config,
+                                                                             sequence.intrinsics, options.chunk)))
     offsets = grid(options)
     directions = pure.directions(options.axes)
     document = dict(frame=t, reference=reference, reference_w2c=np.asarray(w2c_ref, np.float64).tolist(), axes={},
@@ -188,8 +190,13 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     return document
 
 
-# One program (called eagerly, the tracker's scans and its many small ops compiled one by one: 14 s more at 40x30).
-_track = jax.jit(track)
+def _stepped_pose(state, frame, config: SlamConfig, intrinsics, chunk: int) -> jax.Array:
+    """[4, 4] the pose SLAM's step gives ``frame`` after ``state`` (tracked from the constant-velocity prediction,
+    with the divergence guard): a chunk of the program that built the map, ``frame`` then padding."""
+    frames, valid = pad_chunk([frame], chunk)
+    call = exported_call() or (lambda fn, *args: fn(*args))
+    _, outputs = call(run_chunk, state, frames, valid, config, intrinsics, unknown_poses(chunk))
+    return outputs.w2c[0]
 
 
 def _batch(requested: int | None) -> int:

@@ -76,14 +76,20 @@ class ExportedPrograms:
         self._digest = self._digest or source_digest()
         key = program_key(fn, args, self._digest)
         program = self._programs.get(key)
-        if program is not None:
-            return program(*committed(args))
-        # The first call compiles (or loads from JAX's cache) and dispatches: one process at a time per program, so
-        # processes that start together (a multi-process sweep, the test workers) compile it once, the others
-        # load it. Dispatch is asynchronous: the lock is not held while the program runs.
-        with self._compiling(key):
-            program = self._programs[key] = self._load(key) or self._export(fn, args, key)
-            return program(*committed(args))
+        if program is None:
+            # The first call compiles (or loads from JAX's cache) and dispatches: one process at a time per program,
+            # so processes that start together (a multi-process sweep, the test workers) compile it once, the others
+            # load it. Dispatch is asynchronous: the lock is not held while the program runs.
+            with self._compiling(key):
+                program = self._programs[key] = self._load(key) or self._export(fn, args, key)
+                return self._invoke(fn, program, args)
+        return self._invoke(fn, program, args)
+
+    @staticmethod
+    def _invoke(fn: Callable, program: Callable, args: tuple):
+        # An exported program's arguments are committed (see committed()); a function not exported is called as
+        # a direct call calls it, so that it is the direct call's program (and JAX's cache entry).
+        return fn(*args) if program is fn else program(*committed(args))
 
     @contextlib.contextmanager
     def _compiling(self, key: str):

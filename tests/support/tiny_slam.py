@@ -194,7 +194,7 @@ def scan(stacked: Frame, config: SlamConfig | None = None, state: SlamState | No
       (the state after the frames, their StepOutputs [T, ...]).
     """
     from gsjax.app.compilation_cache import exported_call
-    from gsjax.slam.system import run_chunk
+    from gsjax.slam.system import run_chunk, unknown_poses
 
     count = int(stacked.depth.shape[0])
     valid = jnp.ones(count, bool) if valid is None else jnp.asarray(valid, bool)
@@ -207,6 +207,7 @@ def scan(stacked: Frame, config: SlamConfig | None = None, state: SlamState | No
         index = jnp.minimum(jnp.arange(begin, begin + CHUNK), end - 1)
         chunk = jax.tree_util.tree_map(lambda x, index=index: x[index], stacked)
         real = valid[index] & (jnp.arange(CHUNK) < end - begin)
-        state, out = exported_call()(run_chunk, state, chunk, real, config, tiny_sequence().intrinsics, None)
+        state, out = exported_call()(run_chunk, state, chunk, real, config, tiny_sequence().intrinsics,
+                                     unknown_poses(CHUNK))  # as the runner calls it: the same program
         parts.append(jax.tree_util.tree_map(lambda x, n=end - begin: x[:n], out))
     return state, jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *parts)
