@@ -84,7 +84,9 @@ def smooth_points(key: jax.Array, points: jax.Array, config: CBKNNConfig) -> jax
     ).astype(jnp.int32)
     subset = jnp.maximum(1, jnp.floor(k * (1.0 - config.smoothing_dropout))).astype(jnp.int32)
     order_keys = jnp.where(jnp.arange(k_max)[None, :] < k[:, None], jax.random.uniform(key, (count, k_max)), 2.0)
-    rank = jnp.argsort(jnp.argsort(order_keys, axis=-1), axis=-1)
+    # Each key's rank among its row's: counted pairwise (k_max^2 comparisons, no sort to compile); the real keys are
+    # distinct uniforms, and the padding's ties (2.0) rank at k or more, never chosen.
+    rank = jnp.sum(order_keys[:, None, :] < order_keys[:, :, None], axis=-1)
     chosen = (rank < subset[:, None]).astype(points.dtype)
     mean = jnp.einsum("nk,nkc->nc", chosen, points[neighbours]) / subset[:, None]
     return jnp.where((subset > 1)[:, None], mean, points)
