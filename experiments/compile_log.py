@@ -5,7 +5,7 @@ start) append a line per compiled program to ``DIR/<pid>.tsv`` (:mod:`gsjax.app.
 program's name, its trace, lowering and XLA compile seconds, and whether XLA's part was a persistent-cache hit.
 
     GSJAX_CACHE_DIR=$(mktemp -d) GSJAX_COMPILE_LOG=/tmp/clog make test
-    python experiments/compile_log.py /tmp/clog [--top 20] [--markdown]
+    python experiments/compile_log.py /tmp/clog [--top 20] [--tests-only]
 
 A compilation that is not a cache hit is a distinct program (the two pytest workers share the cache and take a
 lock per SLAM program, so what one compiled the other loads). Kinds, by the jitted function's name: the SLAM scan
@@ -65,8 +65,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("directory", type=Path)
     parser.add_argument("--top", type=int, default=15, help="also list the tests with the most compile time")
+    parser.add_argument("--tests-only", action="store_true",
+                        help="leave out the gsjax commands the tests start (their own processes), to compare with a "
+                             "log of the pytest workers alone")
     args = parser.parse_args()
     rows = read(args.directory)
+    if args.tests_only:
+        rows = [row for row in rows if not row["test"].startswith("gsjax ")]
     print("| kind | programs compiled | cache hits | trace s | lower s | XLA compile s |")
     print("|---|---|---|---|---|---|")
     totals = [0, 0, 0.0, 0.0, 0.0]

@@ -45,6 +45,9 @@ class LiveCamera:
             if not Path(source).is_file():
                 raise ValueError(f"{source}: no such RealSense recording")
             config.enable_device_from_file(str(source), repeat_playback=False)
+        if self.source == LIVE and not len(rs.context().query_devices()):
+            # pipeline.start waits about 15 s for a camera before it gives up: say so at once instead.
+            raise ValueError(f"--path {source}: no RealSense camera is connected (No device connected)")
         self._pipeline = rs.pipeline()
         try:
             profile = self._pipeline.start(config)
