@@ -20,7 +20,8 @@ count (the while loop's predicate and the cond's are then batched): a batched pr
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+import functools
+from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
 import jax
@@ -106,10 +107,37 @@ def loop_caps(config: Any) -> LoopCaps:
     return config.caps
 
 
+def common_caps(configs: Iterable[Any]) -> LoopCaps:
+    """The caps that hold every one of ``configs``' loops and flags (the union of their caps), for configs that are to
+    share one program (:meth:`gsjax.slam.config.SlamConfig.with_caps`).
+
+    Args:
+      configs: SLAM configs.
+
+    Returns:
+      The caps.
+    """
+    return functools.reduce(LoopCaps.union, [c.caps for c in configs if c.caps is not None], LoopCaps())
+
+
+def compiles_smoothing(config: Any) -> bool:
+    """Whether a :class:`gsjax.slam.config.SlamConfig`'s program carries CB-KNN's per-pixel correction in its renders
+    (:attr:`LoopCaps.smoothing`; True when the config has no caps yet).
+
+    Args:
+      config: the SLAM config.
+
+    Returns:
+      A static bool.
+    """
+    return config.caps is None or config.caps.smoothing
+
+
 @dataclasses.dataclass(frozen=True)
 class LoopCaps:
-    """The static part of a SLAM program's loops: each loop's cap (:func:`cap_for`; 0: not compiled), and whether
-    mapping carries a contributor selection per window view (``mapping.reselect_every`` > 1: a [V, K, P] buffer).
+    """The static part of a SLAM program's loops: each loop's cap (:func:`cap_for`; 0: not compiled), whether
+    mapping carries a contributor selection per window view (``mapping.reselect_every`` > 1: a [V, K, P] buffer), and
+    whether CB-KNN's per-pixel correction is compiled into the renders (``cbknn.mode`` ``paper``).
 
     Derived from a config's traced counts (:meth:`of`) and held in its tree structure (``SlamConfig.caps``), so two
     configs whose counts share the caps share one compiled program.
@@ -122,6 +150,10 @@ class LoopCaps:
       mapping_strided: cap of the strided mapping iterations (``mapping.strided_iters``).
       mapping_reselect: mapping chooses the window views' contributors every ``mapping.reselect_every`` iterations
         and carries them in between.
+      smoothing: the renders carry CB-KNN's correction as a branch on the traced keyframe-and-mode flag (``paper``
+        mode, or a sweep with it among its modes). Without it (``off``, ``code_parity``) the renders are canonical
+        with no branch: on XLA:CPU the branch's outputs, K x P slot arrays per render, cost copies and fusions
+        (a ``cpu`` step 3-4 % slower, a whole run up to 11 %, with the branch compiled and never taken).
       differentiable: the loops take the form reverse mode passes through (:func:`counted_scan`: a scan over the
         cap, slower per iteration), for programs that differentiate through them; False (a run): while loops.
       pinned: given on purpose (:meth:`gsjax.slam.config.SlamConfig.with_caps`: kept, and raised only where a count
@@ -134,6 +166,7 @@ class LoopCaps:
     mapping: int = 0
     mapping_strided: int = 0
     mapping_reselect: bool = False
+    smoothing: bool = False
     differentiable: bool = False
     pinned: bool = dataclasses.field(default=False, compare=False, repr=False)  # not part of the program
 
@@ -151,12 +184,15 @@ class LoopCaps:
         """
         counts = (config.tracking.iters, config.tracking.strided_iters, config.tracking.coarse.iters,
                   config.mapping.iters, config.mapping.strided_iters, config.mapping.reselect_every)
-        if not all(is_checkable(c) for c in counts):
+        mode = config.cbknn.mode
+        if not all(is_checkable(c) for c in counts) or not (isinstance(mode, str) or is_checkable(mode)):
             return None
+        paper = config.cbknn.smooth_renders
         top = [int(np.max(np.asarray(c))) for c in counts]
         bound = (lambda c: c) if exact else cap_for
         return LoopCaps(tracking=bound(top[0]), tracking_strided=bound(top[1]), tracking_coarse=bound(top[2]),
-                        mapping=bound(top[3]), mapping_strided=bound(top[4]), mapping_reselect=top[5] > 1)
+                        mapping=bound(top[3]), mapping_strided=bound(top[4]), mapping_reselect=top[5] > 1,
+                        smoothing=bool(np.any(paper)))
 
     def union(self, other: LoopCaps) -> LoopCaps:
         """Caps that hold both ``self``'s loops and ``other``'s (the larger cap of each loop).

@@ -138,7 +138,7 @@ def map_window(
 
     def full_view(g, view_index, smooth, it, selection):
         view = render_view(g, views.w2c[view_index], intrinsics, config.raster, config.cbknn, smooth,
-                           views.gamma[view_index], selection)
+                           views.gamma[view_index], selection, caps.smoothing)
         return view, views.color[view_index], views.depth[view_index]
 
     def strided_view(g, view_index, smooth, it, selection):
@@ -146,7 +146,7 @@ def map_window(
         if selection is not None:
             selection = strided_slots(selection, config.raster, intrinsics, it % 4)
         view = render_view(g, views.w2c[view_index], intrinsics_s, strided_config.raster, strided_config.cbknn,
-                           smooth, views.gamma[view_index], selection)
+                           smooth, views.gamma[view_index], selection, caps.smoothing)
         return view, color, depth
 
     def loss_fn(params, active, view_index, it, view_at, selection):

@@ -29,6 +29,7 @@ from gsjax.raster.cbknn import CBKNN, motion_from_poses
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import densify
 from gsjax.slam.keyframes import select_window
+from gsjax.slam.loops import compiles_smoothing
 from gsjax.slam.mapping import MapResult, gather_window_frames, map_window
 from gsjax.slam.noise import NOISE_STREAM, add_depth_noise, perturb_map, perturb_stored_map
 from gsjax.slam.state import SlamState
@@ -231,7 +232,8 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
 
     with jax.named_scope("densify"):
         smooth_densify = smooth & config.cbknn.densify
-        view = render_view(state.gaussians, w2c, intrinsics, config.raster, config.cbknn, smooth_densify, gamma)
+        view = render_view(state.gaussians, w2c, intrinsics, config.raster, config.cbknn, smooth_densify, gamma,
+                           can_smooth=compiles_smoothing(config))
         inserted = densify(state.gaussians, jax.lax.stop_gradient(view), frame.color, frame.depth, w2c, intrinsics,
                            config.densify)
         gaussians = inserted.gaussians

@@ -35,7 +35,7 @@ from gsjax.config_fields import choice_is
 from gsjax.gaussians import Gaussians
 from gsjax.raster import select_slots
 from gsjax.slam.config import BEST_POSE, CoarseToFine, SlamConfig, TrackingConfig
-from gsjax.slam.loops import LoopCaps, counted_scan, loop_caps
+from gsjax.slam.loops import LoopCaps, compiles_smoothing, counted_scan, loop_caps
 from gsjax.slam.losses import TrackingTerms, tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
 from gsjax.slam.views import render_view, strided_frame, strided_setup, strided_slots
@@ -130,7 +130,7 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
 
     def view_at(delta, selection=None):
         return render_view(gaussians, perturb_left(delta, w2c_init), intrinsics, config.raster, config.cbknn, smooth,
-                           gamma, selection)
+                           gamma, selection, compiles_smoothing(config))
 
     def loss_fn(delta, selection=None):
         return tracking_loss(view_at(delta, selection), color, depth, TrackingTerms.of(cfg, lambda_color))

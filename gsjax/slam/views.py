@@ -46,7 +46,8 @@ def _view(out) -> RenderedView:
 
 def render_view(
     gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics, raster: RasterSettings, cbknn: CBKNNConfig,
-    smooth: bool | jax.Array, gamma: float | jax.Array, selection: SlotSelection | None = None
+    smooth: bool | jax.Array, gamma: float | jax.Array, selection: SlotSelection | None = None,
+    can_smooth: bool = True,
 ) -> RenderedView:
     """Render ``gaussians`` at ``w2c``, with CB-KNN's per-pixel smoothing where ``smooth`` is true.
 
@@ -63,12 +64,14 @@ def render_view(
       gamma: [] CB-KNN's inter-frame motion in [0, 1] for its adaptive K (may be traced); read only when smoothing.
       selection: contributor slots chosen at a nearby pose (:func:`gsjax.raster.select_slots`, same intrinsics and
         settings), or None to choose them at ``w2c``.
+      can_smooth: (static) whether the program carries the correction at all (``SlamConfig.caps.smoothing``);
+        False renders canonically whatever ``smooth`` says.
 
     Returns:
       the render's colour, depth, silhouette, depth_sq and truncation diagnostics.
     """
     paper = cbknn.smooth_renders
-    if paper is False:  # a concrete mode other than paper (outside jit): the canonical render only
+    if paper is False or not can_smooth:  # a mode other than paper (concrete, or by the caps): canonical only
         return _view(render(gaussians, w2c, intrinsics, raster, selection=selection))
     params = cbknn.params
     if params.k_max > raster.max_contributors:

@@ -95,10 +95,14 @@ def test_expand_grid_validates_values_like_an_override():
 def test_traced_fields_share_one_program_and_a_static_field_gives_one_per_value():
     base = tiny_config()
     traced = [parse_grid("cbknn.params.alpha=0.1,0.2"), parse_grid("noise.depth_cm=0,1"),
-              parse_grid("cbknn.mode=off,code_parity,paper"), parse_grid("tracking.iters=3,50"),
+              parse_grid("cbknn.mode=off,code_parity"), parse_grid("tracking.iters=3,50"),
               parse_grid("mapping.strided_iters=0,4")]  # counts across caps: the sweep's common caps hold them all
     assert len(group_by_program(expand_grid(base, traced, [0, 1]))) == 1
     assert static_fields(base, traced) == []
+    # paper's renders carry CB-KNN's correction: its own program, the other modes' rows still one
+    modes = [parse_grid("cbknn.mode=off,code_parity,paper"), parse_grid("tracking.iters=3,50")]
+    assert [len(g) for g in group_by_program(expand_grid(base, modes, [0]))] == [4, 2]
+    assert static_fields(base, modes) == ["cbknn.mode"]
     mixed = [parse_grid("tracking.blur.radius_px=0,4"), parse_grid("tracking.lr_rot=0.001,0.002")]
     groups = group_by_program(expand_grid(base, mixed, [0]))
     assert [len(g) for g in groups] == [2, 2]
@@ -110,17 +114,19 @@ def test_traced_fields_share_one_program_and_a_static_field_gives_one_per_value(
                                   ["--grid", "cbknn.mode=off,code_parity,paper"]])
 def test_a_sweep_over_iteration_counts_or_cbknn_modes_runs_one_slam_program_and_equals_separate_runs(
         grid, tmp_path, capsys, monkeypatch):
-    """The issue's grids: each value a traced leaf of one program. The programs the sweep calls are counted (each
-    would be a compilation in a fresh process), and its rows are the separate runs', bit for bit."""
+    """The issue's grids: each value a traced leaf of one program (the modes: ``paper`` one, with CB-KNN's correction
+    compiled in, ``off`` and ``code_parity`` another). The programs the sweep calls are counted (each would be a
+    compilation in a fresh process), and its rows are the separate runs', bit for bit."""
     from gsjax.app import programs
 
     keys, key_of = [], programs.program_key
     monkeypatch.setattr(programs, "program_key", lambda *a: keys.append(key_of(*a)) or keys[-1])
     out = tmp_path / "sweep"
     assert main(["sweep", "--out", str(out), *TINY_RUN, *grid]) == 0
-    assert len(set(keys)) == 1  # one SLAM program for every config
+    programs_expected = 2 if "cbknn.mode" in grid[1] else 1
+    assert len(set(keys)) == programs_expected  # one SLAM program per kind of render
     configs = len(read_sweep_csv(out / "sweep.csv"))
-    assert f"gsjax sweep: {configs} configs in 1 program(s)" in capsys.readouterr().out
+    assert f"gsjax sweep: {configs} configs in {programs_expected} program(s)" in capsys.readouterr().out
     rows = read_sweep_csv(out / "sweep.csv")
     fields = [grid[i + 1].split("=")[0] for i in range(0, len(grid), 2)]
     for row in (rows[0], rows[-1]):  # the grid's corners as separate `gsjax run`s

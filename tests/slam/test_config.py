@@ -125,8 +125,9 @@ def test_config_from_dict_rejects_unknown_keys():
 
 def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
     """Changing a learning rate, loss weight, CB-KNN alpha/k0/beta, an iteration count within its cap or CB-KNN's
-    mode and switches keeps the treedef (no recompilation, vmap-able); changing a shape, the optimizer or a count
-    past its cap changes it."""
+    mode and switches within the program's caps keeps the treedef (no recompilation, vmap-able); changing a shape,
+    the optimizer, a count past its cap or the mode to ``paper`` from a program without CB-KNN's correction changes
+    it."""
     base = preset("cpu")
     structure = jax.tree_util.tree_structure(base)
     traced = {"tracking.lr_trans": "0.01", "tracking.lambda_color": "0.3", "mapping.lr_rgb": "0.01",
@@ -135,11 +136,16 @@ def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
               "mapping.clamp_rgb": "true", "tracking.blur.sigma_px": "1.5", "tracking.coarse.sigma_px": "2",
               "noise.persistent_means_cm": "1", "noise.persistent_frame": "5", "tracking.iters": "5",
               "tracking.strided_iters": "20", "tracking.reselect_every": "1", "tracking.stop.window": "3",
-              "mapping.iters": "25", "mapping.every": "2", "mapping.reselect_every": "10", "cbknn.mode": "paper",
+              "mapping.iters": "25", "mapping.every": "2", "mapping.reselect_every": "10", "cbknn.mode": "code_parity",
               "cbknn.track_keyframes": "false", "cbknn.map_keyframes": "false", "cbknn.densify": "false",
               "cbknn.kf_overlap_smoothing": "true"}
     for name, value in traced.items():
         assert jax.tree_util.tree_structure(apply_overrides(base, {name: value})) == structure, name
+    # Every mode in a program compiled with the correction (a sweep's common caps): one treedef.
+    smoothing = base.with_caps(dataclasses.replace(base.caps, smoothing=True))
+    modes = {mode: apply_overrides(smoothing, {"cbknn.mode": mode}) for mode in ("off", "code_parity", "paper")}
+    assert len({jax.tree_util.tree_structure(c) for c in modes.values()}) == 1
+    assert jax.tree_util.tree_structure(apply_overrides(base, {"cbknn.mode": "paper"})) != structure
     static = {"tracking.iters": "33", "tracking.optimizer": "lm", "mapping.window_size": "4",
               "cbknn.params.k_max": "8", "keyframe_every": "3", "raster.max_contributors": "32",
               "tracking.blur.radius_px": "4", "mapping.reselect_every": "1", "mapping.strided_iters": "10"}

@@ -77,3 +77,17 @@ def test_a_config_derives_its_caps_from_its_counts_and_a_pinned_cap_is_kept():
     common = b.caps
     stacked = stack_trees([a.with_caps(common), b.with_caps(common)])
     assert stacked.caps.mapping == 64
+
+
+def test_cbknn_correction_is_compiled_in_for_paper_only_and_a_common_cap_holds_it():
+    from gsjax.slam.loops import common_caps
+    from gsjax.slam.presets import with_cbknn_mode
+
+    off = preset("cpu")
+    parity, paper = with_cbknn_mode(off, "code_parity"), with_cbknn_mode(off, "paper")
+    assert not off.caps.smoothing and not parity.caps.smoothing and paper.caps.smoothing
+    assert common_caps([off, paper]).smoothing and not common_caps([off, parity]).smoothing
+    # caps pinned without the correction are raised when the mode becomes paper
+    pinned = off.with_caps(off.caps)
+    assert apply_overrides(pinned, {"cbknn.mode": "paper"}).caps.smoothing
+    assert not apply_overrides(pinned, {"cbknn.mode": "code_parity"}).caps.smoothing
