@@ -23,7 +23,8 @@ Every field of `SlamConfig`, by its dotted name: what `gsjax run --NAME VALUE` a
 take, and how `config.json` stores it. **Traced** fields are pytree leaves: a sweep over them runs one compiled
 program (`jax.vmap` over configs) and `jax.grad` can reach them. Iteration counts and CB-KNN's mode and switches are
 traced too: a count runs within a cap of the program (the next power of two from 32), so every count up to it shares
-the program, and a sweep compiles its grid for the largest. **Static** ones (shapes, the optimizer, a few flags) are
+the program, and a sweep compiles its grid for the largest; CB-KNN's correction is compiled into the renders only
+for `paper` (so `paper` and the other modes are two programs). **Static** ones (shapes, the optimizer, a few flags) are
 part of the compiled program, so each value compiles anew. Fields marked *follows width* are given for the preset's
 width and scale with the working width (`gsjax.slam.presets.at_width`): a length in px with it, a bound in pixel
 footprints against it. Defaults are each preset's at its own width ({widths}), CB-KNN mode `off` (`--cbknn`
