@@ -44,7 +44,6 @@ from gsjax.slam import landscape as pure
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import pad_chunk
 from gsjax.slam.driver import run as slam_run
-from gsjax.slam.loops import common_caps
 from gsjax.slam.presets import with_cbknn_mode, with_coarse_to_fine, with_image_smoothing
 from gsjax.slam.system import run_chunk, tracking_problem, unknown_poses
 
@@ -154,16 +153,14 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
         document["grid2d"] = dict(axes=list(options.axes), units=[pure.AXES[a][1] for a in options.axes],
                                   offsets={a: [float(o) for o in row] for a, row in zip(options.axes, offsets)})
     timings = dict(map_s=map_s)
-    # The modes' configs on common caps (CB-KNN's correction compiled in when one mode smooths): one program for all
-    # the modes that differ only in traced fields.
-    configs = {mode: MODES[mode][0](config) for mode in options.modes}
-    caps = common_caps(list(configs.values()))
     for mode in options.modes:
         t0 = time.perf_counter()
-        smooth = MODES[mode][1]
-        # Around the reference pose; a smoothed mode renders smoothed at every offset (as on a keyframe).
+        configure, smooth = MODES[mode]
+        # Around the reference pose; a smoothed mode renders smoothed at every offset (as on a keyframe). Each mode on
+        # its own caps: paper's program carries CB-KNN's correction, the others' do not (on common caps `off` ran
+        # 28 % slower warm, and the one compilation saved no time cold: experiments/README.md, "Compile less").
         around = problem._replace(w2c_init=w2c_ref, smooth=jnp.bool_(smooth))
-        result = jax.device_get(pure.landscape(around, configs[mode].with_caps(caps), directions,
+        result = jax.device_get(pure.landscape(around, configure(config), directions,
                                                jnp.asarray(offsets, jnp.float32), plane=options.grid2d,
                                                batch=_batch(options.batch)))
         timings[f"{mode}_s"] = time.perf_counter() - t0
