@@ -108,8 +108,8 @@ def expand_grid(base: SlamConfig, axes: list[GridAxis], seeds: list[int]) -> lis
 
 def _pinned(config: SlamConfig, caps: LoopCaps) -> SlamConfig:
     """``config`` on the sweep's common loop caps, with its own :attr:`LoopCaps.smoothing`: CB-KNN's correction
-    compiled in costs a run that never smooths 4-11 % on XLA:CPU, so ``paper`` and the other modes stay two programs
-    (each row then the very program of its separate run)."""
+    compiled in costs a run that never smooths 8-11 % of its SLAM time on XLA:CPU, so ``paper`` and the other modes
+    stay two programs (each row then the very program of its separate run)."""
     return config.with_caps(dataclasses.replace(caps, smoothing=config.caps.smoothing))
 
 

@@ -153,7 +153,7 @@ class LoopCaps:
       smoothing: the renders carry CB-KNN's correction as a branch on the traced keyframe-and-mode flag (``paper``
         mode, or a sweep with it among its modes). Without it (``off``, ``code_parity``) the renders are canonical
         with no branch: on XLA:CPU the branch's outputs, K x P slot arrays per render, cost copies and fusions
-        (a ``cpu`` step 3-4 % slower, a whole run up to 11 %, with the branch compiled and never taken).
+        (a ``cpu`` step about 4 % slower, a whole run's SLAM 8-11 %, with the branch compiled and never taken).
       differentiable: the loops take the form reverse mode passes through (:func:`counted_scan`: a scan over the
         cap, slower per iteration), for programs that differentiate through them; False (a run): while loops.
       pinned: given on purpose (:meth:`gsjax.slam.config.SlamConfig.with_caps`: kept, and raised only where a count

@@ -112,7 +112,7 @@ def test_traced_fields_share_one_program_and_a_static_field_gives_one_per_value(
 
 @pytest.mark.parametrize("grid", [["--grid", "tracking.iters=2,4", "--grid", "mapping.iters=1,3"],
                                   ["--grid", "cbknn.mode=off,code_parity,paper"]])
-def test_a_sweep_over_iteration_counts_or_cbknn_modes_runs_one_slam_program_and_equals_separate_runs(
+def test_a_sweep_over_iteration_counts_or_cbknn_modes_runs_one_program_per_kind_of_render_equal_to_separate_runs(
         grid, tmp_path, capsys, monkeypatch):
     """The issue's grids: each value a traced leaf of one program (the modes: ``paper`` one, with CB-KNN's correction
     compiled in, ``off`` and ``code_parity`` another). The programs the sweep calls are counted (each would be a
