@@ -11,11 +11,14 @@ APT    := DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get -y -q
 
 install: $(STAMP)
 
-# constraints.txt pins the exact, tested versions; pyproject.toml only declares the supported ranges.
+# constraints.txt pins the exact, tested versions; pyproject.toml only declares the supported ranges. uv installs
+# them (12 s where pip took 81 s on the CI machine: a third of `make demo` from a fresh clone); pip where uv cannot.
+UV_PIN := $(shell sed -n 's/^uv==//p' constraints.txt)
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -c constraints.txt -e '.[test,docs]'
+	$(BIN)/pip install -q "uv==$(UV_PIN)" && $(BIN)/uv pip install -q --python $(BIN)/python -c constraints.txt \
+	    -e '.[test,docs]' || { echo "uv could not install the packages: pip instead"; \
+	    $(BIN)/pip install -q -c constraints.txt -e '.[test,docs]'; }
 	touch $(STAMP)
 
 # The browser tests (tests/viewer/test_ui_browser.py) drive Debian's Chromium; installed here when missing.

@@ -26,7 +26,7 @@ from gsjax.slam.tracking import TrackingProblem, tracking_objective
 from tests.support.tiny_slam import CHUNK, FRAMES, TINY_OVERRIDES, relative_gt_w2c, tiny_config, tiny_sequence
 
 FRAME = 4
-STEPS = 5
+STEPS = 3  # offsets -1, 0, 1: the tracker's runs (2 modes x (2 axes x 3 + 3^2 + 1)) are the module's time
 # The tiny tests' config (their SLAM program: the counts are traced) with 30 tracking and mapping iterations: the
 # tiny runs' 2 mapping iterations leave a map whose loss is not lowest at the ground-truth pose.
 COUNTS = {"tracking.iters": "30", "mapping.iters": "30"}
@@ -180,7 +180,7 @@ def frozen_loss(problem: TrackingProblem, config, direction, offsets, centre):
                 + objective.lambda_color * jnp.sum(jnp.where(mask[..., None], jnp.abs(view.color - problem.color),
                                                              0.0)))
 
-    return jax.vmap(one)(offsets)
+    return jax.lax.map(one, offsets)  # the render once in the program: a vmapped one compiled 2x longer
 
 
 @pytest.mark.parametrize("mode", list(MODES))

@@ -127,7 +127,7 @@ def _landscapes():
     problem = TrackingProblem(first_frame_map(), frame.color, frame.depth, w2c_ref, tiny_sequence().intrinsics,
                               jnp.bool_(False), jnp.float32(0.0))
     run = functools.partial(pure.landscape, problem, directions=pure.directions(AXES), offsets=jnp.asarray(OFFSETS),
-                            plane=True)
+                            plane=True, batch=1)  # one point at a time (as on a CPU): faster to compile
     still = apply_overrides(config, {"tracking.lr_trans": "0", "tracking.lr_rot": "0"})
     return jax.device_get(run(config=still)), jax.device_get(run(config=config)), np.asarray(w2c_ref)
 
