@@ -7,8 +7,8 @@ Every command runs as its own process, as a user would type it, with ``GSJAX_CAC
 directory (cold) or at the one the cold pass filled (warm). The floor on a CPU (issue 47, decision 1) is what a sweep
 cannot share: the first separate run's whole wall time (start-up, compilation, its SLAM, its outputs) plus the SLAM
 compute of the other runs. Grids: ``alpha_k0`` (CB-KNN's alpha x K0), ``counts`` (``tracking.iters`` x
-``mapping.iters``, traced: one program) and ``modes`` (``cbknn.mode``: off, code_parity and paper, traced: one
-program). Writes ``bench_sweep_N[_GRID].json`` and prints a table.
+``mapping.iters``, traced: one program) and ``modes`` (``cbknn.mode``: off, code_parity and paper; traced, but
+``paper`` compiles CB-KNN's correction in: two programs). Writes ``bench_sweep_N[_GRID].json`` and prints a table.
 """
 
 from __future__ import annotations
