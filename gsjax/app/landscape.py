@@ -131,7 +131,8 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     say(f"gsjax landscape: mapping frames 0..{t - 1} ({how})")
     built = slam_run(frames[:t], config, sequence.intrinsics, seed=options.seed, poses=poses, chunk=options.chunk,
                      call=exported_call())
-    map_s = time.perf_counter() - t0
+    mapped = time.perf_counter()
+    map_s = mapped - t0
     # Frame T's problem exactly as SLAM's step poses it after frames 0..T-1 (prediction, motion, smooth flag).
     problem = tracking_problem(built.state, jnp.asarray(frames[t].color), jnp.asarray(frames[t].depth), config,
                                sequence.intrinsics)
@@ -163,7 +164,7 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
         # Dispatched, not fetched: the next mode's program is traced and compiled while this one runs.
         pending.append((mode, pure.landscape(around, configure(config), directions, jnp.asarray(offsets, jnp.float32),
                                              plane=options.grid2d, batch=_batch(options.batch))))
-    clock = t0 + map_s  # each mode's time: from the mapping's end, or the previous mode's result, to its result
+    clock = mapped  # each mode's time: from the mapping's end, or the previous mode's result, to its result
     for mode, pending_result in pending:
         result = jax.device_get(pending_result)
         timings[f"{mode}_s"], clock = time.perf_counter() - clock, time.perf_counter()

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from gsjax.config_text import apply_overrides, config_from_dict, config_to_dict
-from gsjax.slam.loops import LoopCaps, cap_for, counted_scan
-from gsjax.slam.presets import preset
+from gsjax.slam.loops import LoopCaps, cap_for, common_caps, counted_scan
+from gsjax.slam.presets import preset, with_cbknn_mode
 
 
 def _descend(lr, count, cap, differentiable, running=None):
@@ -80,9 +80,6 @@ def test_a_config_derives_its_caps_from_its_counts_and_a_pinned_cap_is_kept():
 
 
 def test_cbknn_correction_is_compiled_in_for_paper_only_and_a_common_cap_holds_it():
-    from gsjax.slam.loops import common_caps
-    from gsjax.slam.presets import with_cbknn_mode
-
     off = preset("cpu")
     parity, paper = with_cbknn_mode(off, "code_parity"), with_cbknn_mode(off, "paper")
     assert not off.caps.smoothing and not parity.caps.smoothing and paper.caps.smoothing

@@ -12,6 +12,8 @@ OUTPUTS = ("color", "depth", "silhouette", "depth_sq")
 MAX_ABS_TOL = 5e-3
 MEAN_ABS_TOL = 2e-4
 
+_render = jax.jit(render)  # one program per static settings and shapes (jitted_render)
+
 # Finite-difference gradient checks (shared by the canonical and the CB-KNN gradient tests).
 FIELDS = ("means", "log_scales", "logit_opacities", "rgb")
 STEP = {"means": 1e-6, "log_scales": 1e-6, "logit_opacities": 1e-6, "rgb": 1e-4, "pose": 1e-6}  # float64 FD steps
@@ -27,9 +29,6 @@ def loss_weights(height: int, width: int, seed: int = 0) -> dict[str, np.ndarray
         silhouette=rng.normal(size=(height, width)),
         depth_sq=rng.normal(size=(height, width)),
     )
-
-
-_render = jax.jit(render)
 
 
 def jitted_render(render_settings):
