@@ -8,6 +8,9 @@ the platform, the arguments' tree structure (the static config fields) and shape
 exported StableHLO (milliseconds) and calls it through ``jax.jit``, whose compilation is then a hit in JAX's
 persistent cache; on a miss it exports (one trace, as before) and stores the module for the next process. Anything
 that goes wrong (a module JAX cannot export or read back) falls back to calling the function itself.
+
+A process other than the first of a multi-process CPU job also keeps its compiled executables beside the modules
+(:func:`keeps_own_executables`): JAX's persistent cache would never hold them.
 """
 
 from __future__ import annotations
@@ -81,7 +84,10 @@ class ExportedPrograms:
             # so processes that start together (a multi-process sweep, the test workers) compile it once, the others
             # load it. Dispatch is asynchronous: the lock is not held while the program runs.
             with self._compiling(key):
-                program = self._programs[key] = self._load(key) or self._export(fn, args, key)
+                program = self._load(key) or self._export(fn, args, key)
+                if program is not fn and keeps_own_executables():
+                    program = self._executable(key, program, args)
+                self._programs[key] = program
                 return self._invoke(fn, program, args)
         return self._invoke(fn, program, args)
 
@@ -121,6 +127,30 @@ class ExportedPrograms:
             log.debug("exported program %s unreadable (%s); exporting again", path, error)
             return None
 
+    def _executable(self, key: str, program: Callable, args: tuple) -> Callable:
+        """``program`` compiled for this process's devices, read from its own file when an earlier run wrote one (see
+        :func:`keeps_own_executables`), else compiled now and written; ``program`` itself when either fails."""
+        from jax.experimental import serialize_executable
+
+        args = committed(args)
+        if {d for x in jax.tree.leaves(args) if isinstance(x, jax.Array) for d in x.devices()} != set(
+                jax.local_devices()):
+            return program  # a program over several processes' devices: JAX's cache holds it (its key is shared)
+        path = self.directory / f"{key}.process{jax.process_index()}.executable"
+        if path.exists():
+            try:
+                return serialize_executable.deserialize_and_load(*pickle.loads(path.read_bytes()),
+                                                                 execution_devices=jax.local_devices())
+            except Exception as error:  # a file from an interrupted or foreign writer: compile again
+                log.debug("executable %s unreadable (%s); compiling again", path, error)
+        try:
+            compiled = program.lower(*args).compile()
+            atomic_write_bytes(path, pickle.dumps(serialize_executable.serialize(compiled)))
+            return compiled
+        except Exception as error:
+            log.debug("%s: no executable of this process's own (%s); JAX compiles it", path, error)
+            return program
+
     def _export(self, fn: Callable, args: tuple, key: str) -> Callable:
         try:
             _register_serialization()
@@ -133,6 +163,16 @@ class ExportedPrograms:
         except Exception as error:  # not exportable (e.g. a custom call without a stability guarantee)
             log.debug("%s not exported (%s); calling it directly", getattr(fn, "__name__", fn), error)
             return fn
+
+
+def keeps_own_executables() -> bool:
+    """Whether this process keeps its compiled programs itself: a process other than the first of a multi-process
+    job on CPUs, with one device (a program then runs on that device alone). JAX writes its persistent cache from
+    process 0 only, and a CPU program's cache key holds its device assignment, so without its own files such a
+    process would compile every program anew in every run (measured: process 1 of the suite's two-process sweep
+    compiled its 20 s SLAM program on every warm run)."""
+    return (jax.process_count() > 1 and jax.process_index() != 0 and jax.default_backend() == "cpu"
+            and jax.local_device_count() == 1)
 
 
 def committed(args):

@@ -7,6 +7,9 @@ from __future__ import annotations
 import dataclasses
 import fcntl
 import os
+import subprocess
+import sys
+import textwrap
 import threading
 
 import jax
@@ -63,6 +66,36 @@ def test_an_unreadable_file_is_exported_again_and_an_unexportable_program_is_cal
     other = tmp_path / "other"
     assert_trees_equal(run_tiny(ExportedPrograms(other).call).outputs, direct.outputs)
     assert not list(other.glob("*.exported"))
+
+
+_PROGRAM = "jax.jit(jnp.cosh)"  # the same key in both processes (a lambda's module differs)
+
+
+def test_a_process_that_keeps_its_own_executables_reads_them_back_instead_of_compiling(tmp_path, monkeypatch):
+    """Process 1 of a multi-process CPU sweep (JAX's cache never holds its programs) writes its compiled program
+    beside the exported module, and its next run reads the file instead of compiling. Process 0 of a one-process
+    job plays it here; the writer is a process of its own, as a previous run is (XLA:CPU cannot load an executable
+    into the process that compiled the same program)."""
+    code = textwrap.dedent(f"""
+        import sys, jax, jax.numpy as jnp
+        from gsjax.app import programs
+        programs.keeps_own_executables = lambda: True
+        print(programs.ExportedPrograms(sys.argv[1]).call({_PROGRAM}, jnp.arange(5.0)))
+    """)
+    done = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert len(list(tmp_path.glob("*.process0.executable"))) == 1
+
+    def no_compile(*args, **kwargs):
+        raise AssertionError("compiled again instead of read back")
+
+    monkeypatch.setattr(programs, "keeps_own_executables", lambda: True)
+    monkeypatch.setattr(jax.stages.Lowered, "compile", no_compile)
+    store = ExportedPrograms(tmp_path)
+    result = store.call(eval(_PROGRAM), jnp.arange(5.0))
+    np.testing.assert_allclose(np.asarray(result), np.cosh(np.arange(5.0), dtype=np.float32), rtol=1e-6)
+    (program,) = store._programs.values()
+    assert isinstance(program, jax.stages.Compiled)  # the file's executable, not the fallback
 
 
 def test_the_key_follows_static_fields_shapes_and_the_source_not_traced_values():
