@@ -21,6 +21,7 @@ import hashlib
 import logging
 import os
 import pickle
+import socket
 from collections.abc import Callable
 from pathlib import Path
 
@@ -136,7 +137,8 @@ class ExportedPrograms:
         if {d for x in jax.tree.leaves(args) if isinstance(x, jax.Array) for d in x.devices()} != set(
                 jax.local_devices()):
             return program  # a program over several processes' devices: JAX's cache holds it (its key is shared)
-        path = self.directory / f"{key}.process{jax.process_index()}.executable"
+        # The host in the name too: an executable is machine code for the CPU that compiled it.
+        path = self.directory / f"{key}.process{jax.process_index()}.{socket.gethostname()}.executable"
         if path.exists():
             try:
                 return serialize_executable.deserialize_and_load(*pickle.loads(path.read_bytes()),
