@@ -167,7 +167,8 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     clock = mapped  # each mode's time: from the mapping's end, or the previous mode's result, to its result
     for mode, pending_result in pending:
         result = jax.device_get(pending_result)
-        timings[f"{mode}_s"], clock = time.perf_counter() - clock, time.perf_counter()
+        now = time.perf_counter()
+        timings[f"{mode}_s"], clock = now - clock, now
         document["fixed_point"][mode] = _fixed_point(result.fixed_w2c, w2c_ref)
         for i, axis in enumerate(options.axes):
             document["axes"][axis][mode] = _line_entry(result, i, offsets[i])
