@@ -13,7 +13,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from matplotlib import rc_context
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
@@ -25,11 +27,21 @@ if TYPE_CHECKING:
 _AXES = {"x": 0, "y": 1, "z": 2}
 
 
-def png_bytes(fig: Figure, dpi: int = 120) -> bytes:
-    """The figure as PNG bytes (tight bounding box)."""
+def png_bytes(fig: Figure, dpi: int = 120, tight: bool = True) -> bytes:
+    """The figure as PNG bytes (cropped to a tight bounding box unless ``tight`` is False: that draws it twice)."""
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight" if tight else None)
+    return buf.getvalue()
+
+
+def svg_bytes(fig: Figure) -> bytes:
+    """The figure as SVG bytes, the same for the same figure: no date, fixed element ids, text kept as text (the
+    viewer's sans-serif font) rather than outlines."""
+    FigureCanvasSVG(fig)
+    buf = io.BytesIO()
+    with rc_context({"svg.fonttype": "none", "svg.hashsalt": "gsjax"}):
+        fig.savefig(buf, format="svg", metadata={"Date": None})
     return buf.getvalue()
 
 

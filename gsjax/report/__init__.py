@@ -1,7 +1,7 @@
 """``report.html``: the self-contained HTML report of a run, or of several runs side by side (``gsjax report``).
 
 * :mod:`gsjax.report.run_record`: a finished run read back from its directory (also used by the viewer).
-* :mod:`gsjax.report.figures`: the plots, as PNG bytes.
+* :mod:`gsjax.report.figures`: the plots, as SVG (the page) or PNG (a file) bytes.
 * :mod:`gsjax.report.page`: the page.
 """
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.eval.run_metrics import RunMetrics
-from gsjax.report.figures import Series, series_png
+from gsjax.report.figures import Series, series_svg
 from gsjax.report.run_record import RunRecord
 
 # How every page gsjax writes begins (so that rewriting one never replaces a file gsjax did not write).
@@ -104,9 +104,11 @@ def _e(text) -> str:
 
 
 def _img(data: bytes, alt: str, pixels: bool = False) -> str:
+    """An inline image: PNG (the run's image files) or SVG (the page's plots), told by their first bytes."""
+    mime = "image/png" if data.startswith(b"\x89PNG") else "image/svg+xml"
     encoded = base64.b64encode(data).decode("ascii")
     cls = ' class="pixels"' if pixels else ""
-    return f'<img{cls} alt="{_e(alt)}" src="data:image/png;base64,{encoded}">'
+    return f'<img{cls} alt="{_e(alt)}" src="data:{mime};base64,{encoded}">'
 
 
 def _figure(data: bytes, alt: str, caption: str = "", pixels: bool = False) -> str:
@@ -188,7 +190,7 @@ def _errors_section(runs: list[RunRecord]) -> str:
     if not ate:
         return _note("No per-frame trajectory errors: the run has no ground truth (or predates per-frame errors).")
     panels = [("ATE (cm)", ate), ("RPE translation (cm)", rpe_t), ("RPE rotation (deg)", rpe_r)]
-    return _figure(series_png(panels), "ATE and RPE over time",
+    return _figure(series_svg(panels), "ATE and RPE over time",
                    "Per frame: the camera-centre error after alignment (ATE) and the error of the motion from the "
                    "previous frame (RPE).")
 
@@ -216,7 +218,7 @@ def _drift_section(runs: list[RunRecord]) -> str:
         return _note("No ground truth to compare with.")
     panels = [("camera error, unaligned (cm)", error), ("its change per frame (cm)", change),
               ("tracking loss", loss), ("valid depth (% of pixels)", depth), ("camera motion per frame (cm)", motion)]
-    return _figure(series_png([p for p in panels if p[1]]), "camera error over time, unaligned",
+    return _figure(series_svg([p for p in panels if p[1]]), "camera error over time, unaligned",
                    "The ground truth started at the first estimated pose, then the distance between the camera "
                    "centres per frame (no alignment, so the error shows where it enters, unlike the ATE), its change "
                    "from the previous frame, and beside them the tracking loss, the valid depth and the camera's "
@@ -248,7 +250,7 @@ def _psnr_section(runs: list[RunRecord]) -> str:
             psnr.append(Series(run.name, np.asarray(frames), np.asarray([p["psnr_db"] for p in per_frame])))
     if not psnr:
         return _note("No evaluation frame had usable depth.")
-    return _figure(series_png([("PSNR (dB)", psnr)], markers=True), "PSNR per frame",
+    return _figure(series_svg([("PSNR (dB)", psnr)], markers=True), "PSNR per frame",
                    "On the evaluation frames (t = 0 and every eval_every-th), masked by valid input depth.")
 
 
@@ -263,7 +265,7 @@ def _map_section(runs: list[RunRecord]) -> str:
                                                              for v in per_frame["tracking_loss"]], float)))
     if not count:
         return _note("No per-frame series: the run predates them.")
-    return _figure(series_png([("Gaussians", count), ("tracking loss", loss)]), "Gaussian count and tracking loss",
+    return _figure(series_svg([("Gaussians", count), ("tracking loss", loss)]), "Gaussian count and tracking loss",
                    "Active Gaussians after each frame, and the tracking loss at the frame's final pose.")
 
 

@@ -9,6 +9,7 @@ import base64
 import json
 import re
 import shutil
+from xml.etree import ElementTree
 
 import cv2
 import numpy as np
@@ -40,15 +41,24 @@ def runs(tmp_path_factory):
     return made
 
 
-def images_of(page: str) -> list[np.ndarray]:
-    """Every <img> of the page, decoded (each must be an inline PNG)."""
+def images_of(page: str) -> list[np.ndarray | ElementTree.Element]:
+    """Every <img> of the page, decoded: an inline PNG (the run's image files) to its pixels, an inline SVG (the
+    plots) to its XML root, which must hold drawn lines."""
     sources = re.findall(r'<img[^>]*\bsrc="([^"]*)"', page)
     decoded = []
     for source in sources:
-        assert source.startswith("data:image/png;base64,"), source[:60]
-        image = cv2.imdecode(np.frombuffer(base64.b64decode(source.split(",", 1)[1]), np.uint8), cv2.IMREAD_COLOR)
-        assert image is not None and image.size > 0
-        decoded.append(image)
+        kind, data = source.split(",", 1)
+        data = base64.b64decode(data)
+        if kind == "data:image/png;base64":
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+            assert image is not None and image.size > 0
+            decoded.append(image)
+        else:
+            assert kind == "data:image/svg+xml;base64", source[:60]
+            root = ElementTree.fromstring(data)
+            assert root.tag == "{http://www.w3.org/2000/svg}svg"
+            assert any(True for _ in root.iter("{http://www.w3.org/2000/svg}path"))
+            decoded.append(root)
     return decoded
 
 
