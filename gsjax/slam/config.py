@@ -206,6 +206,10 @@ class NoiseConfig:
     def __post_init__(self):
         check_fields(self, "noise")
 
+    def levels(self) -> tuple:
+        """The noise levels (every field but ``persistent_frame``): all 0 draws no noise."""
+        return (self.map_means_cm, self.map_rgb, self.depth_cm, self.persistent_means_cm, self.persistent_rgb)
+
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)

@@ -120,6 +120,19 @@ def common_caps(configs: Iterable[Any]) -> LoopCaps:
     return functools.reduce(LoopCaps.union, [c.caps for c in configs if c.caps is not None], LoopCaps())
 
 
+def compiles_noise(config: Any) -> bool:
+    """Whether a :class:`gsjax.slam.config.SlamConfig`'s program draws the noise of its ``noise`` levels
+    (:attr:`LoopCaps.noise`; True when the config has no caps yet).
+
+    Args:
+      config: the SLAM config.
+
+    Returns:
+      A static bool.
+    """
+    return config.caps is None or config.caps.noise
+
+
 def compiles_smoothing(config: Any) -> bool:
     """Whether a :class:`gsjax.slam.config.SlamConfig`'s program carries CB-KNN's per-pixel correction in its renders
     (:attr:`LoopCaps.smoothing`; True when the config has no caps yet).
@@ -154,6 +167,9 @@ class LoopCaps:
         mode, or a sweep with it among its modes). Without it (``off``, ``code_parity``) the renders are canonical
         with no branch: on XLA:CPU the branch's outputs, K x P slot arrays per render, cost copies and fusions
         (a ``cpu`` step about 4 % slower, a whole run's SLAM 8-11 %, with the branch compiled and never taken).
+      noise: the step draws the noise of ``config.noise`` (some level above 0, or traced levels). Without it no draw
+        is compiled: XLA:CPU compiles both branches of the ``lax.cond`` that skips zero noise, and the draws were 8 %
+        of the fusions of a SLAM program that never took them (its compile 10-18 % longer).
       differentiable: the loops take the form reverse mode passes through (:func:`counted_scan`: a scan over the
         cap, slower per iteration), for programs that differentiate through them; False (a run): while loops.
       pinned: given on purpose (:meth:`gsjax.slam.config.SlamConfig.with_caps`: kept, and raised only where a count
@@ -167,6 +183,7 @@ class LoopCaps:
     mapping_strided: int = 0
     mapping_reselect: bool = False
     smoothing: bool = False
+    noise: bool = False
     differentiable: bool = False
     pinned: bool = dataclasses.field(default=False, compare=False, repr=False)  # not part of the program
 
@@ -188,11 +205,13 @@ class LoopCaps:
         if not all(is_checkable(c) for c in counts) or not (isinstance(mode, str) or is_checkable(mode)):
             return None
         paper = config.cbknn.smooth_renders
+        levels = jax.tree_util.tree_leaves(config.noise.levels())
+        noise = not is_checkable(levels) or any(bool(np.any(np.asarray(v) > 0)) for v in levels)
         top = [int(np.max(np.asarray(c))) for c in counts]
         bound = (lambda c: c) if exact else cap_for
         return LoopCaps(tracking=bound(top[0]), tracking_strided=bound(top[1]), tracking_coarse=bound(top[2]),
                         mapping=bound(top[3]), mapping_strided=bound(top[4]), mapping_reselect=top[5] > 1,
-                        smoothing=bool(np.any(paper)))
+                        smoothing=bool(np.any(paper)), noise=noise)
 
     def union(self, other: LoopCaps) -> LoopCaps:
         """Caps that hold both ``self``'s loops and ``other``'s (the larger cap of each loop).

@@ -29,7 +29,7 @@ from gsjax.raster.cbknn import CBKNN, motion_from_poses
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import densify
 from gsjax.slam.keyframes import select_window
-from gsjax.slam.loops import compiles_smoothing
+from gsjax.slam.loops import compiles_noise, compiles_smoothing
 from gsjax.slam.mapping import MapResult, gather_window_frames, map_window
 from gsjax.slam.noise import NOISE_STREAM, add_depth_noise, perturb_map, perturb_stored_map
 from gsjax.slam.state import SlamState
@@ -202,9 +202,12 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
     t = state.frame
     # A map handed in with non-finite parameters (a restored or edited state) is cleaned before tracking sees it.
     clean, freed_before = state.gaussians.without_nonfinite()
-    stored = perturb_stored_map(clean, config.noise, t, jax.random.fold_in(state.key, NOISE_STREAM + 2))
+    noisy = compiles_noise(config)  # (static: a program whose levels are all 0 compiles no draw)
+    stored = perturb_stored_map(clean, config.noise, t, jax.random.fold_in(state.key, NOISE_STREAM + 2)) if noisy \
+        else clean
     state = dataclasses.replace(state, gaussians=stored)
-    frame = add_depth_noise(frame, config.noise, jax.random.fold_in(state.key, NOISE_STREAM))
+    if noisy:
+        frame = add_depth_noise(frame, config.noise, jax.random.fold_in(state.key, NOISE_STREAM))
     started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
     keyframe = _is_keyframe(state, config.keyframe_every)
     problem = tracking_problem(state, frame.color, frame.depth, config, intrinsics)
@@ -215,7 +218,8 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         known = _known(pose)
 
         def do_track():
-            seen = perturb_map(state.gaussians, config.noise, jax.random.fold_in(state.key, NOISE_STREAM + 1))
+            seen = perturb_map(state.gaussians, config.noise, jax.random.fold_in(state.key, NOISE_STREAM + 1)) \
+                if noisy else state.gaussians
             return track_guarded(problem._replace(gaussians=seen), config, state.previous_tracking_loss)
 
         def at(w2c):

@@ -111,7 +111,10 @@ def test_noise_changes_the_run_reproducibly_and_zero_noise_is_the_plain_run():
     assert trees_differ(noisy.outputs, run_tiny().outputs)
     assert_trees_equal(run_tiny(noisy_config).outputs, noisy.outputs)  # same seed, same noise
     zero = apply_overrides(tiny_config(), {"noise.depth_cm": "0", "noise.map_rgb": "0.0"})
+    assert not zero.caps.noise and noisy_config.caps.noise  # zero levels: a program without the draws
     assert_trees_equal(run_tiny(zero).outputs, run_tiny().outputs)
+    # Zero levels in the program that draws (a sweep's row beside noisy ones): the plain run still.
+    assert_trees_equal(run_tiny(zero.with_caps(noisy_config.caps)).outputs, run_tiny().outputs)
     assert all_finite(noisy.outputs)
 
 

@@ -79,6 +79,17 @@ def test_a_config_derives_its_caps_from_its_counts_and_a_pinned_cap_is_kept():
     assert stacked.caps.mapping == 64
 
 
+def test_a_config_draws_noise_only_where_a_level_is_above_zero():
+    cpu = preset("cpu")
+    assert not cpu.caps.noise
+    for field in ("map_means_cm", "map_rgb", "depth_cm", "persistent_means_cm", "persistent_rgb"):
+        assert apply_overrides(cpu, {f"noise.{field}": "0.5"}).caps.noise, field
+    assert not apply_overrides(cpu, {"noise.persistent_frame": "3"}).caps.noise  # a frame is no level
+    # A sweep's common caps hold the noisy configs' draws; the zero-level config runs them (drawing nothing).
+    zero, noisy = (apply_overrides(cpu, {"noise.depth_cm": v}) for v in ("0", "1"))
+    assert common_caps([zero, noisy]).noise and zero.with_caps(common_caps([zero, noisy])).caps.noise
+
+
 def test_cbknn_correction_is_compiled_in_for_paper_only_and_a_common_cap_holds_it():
     off = preset("cpu")
     parity, paper = with_cbknn_mode(off, "code_parity"), with_cbknn_mode(off, "paper")
