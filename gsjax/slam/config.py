@@ -207,7 +207,11 @@ class NoiseConfig:
         check_fields(self, "noise")
 
     def levels(self) -> tuple:
-        """The noise levels (every field but ``persistent_frame``): all 0 draws no noise."""
+        """The noise levels: every field but ``persistent_frame`` (all 0: no noise is drawn).
+
+        Returns:
+          ``(map_means_cm, map_rgb, depth_cm, persistent_means_cm, persistent_rgb)``.
+        """
         return (self.map_means_cm, self.map_rgb, self.depth_cm, self.persistent_means_cm, self.persistent_rgb)
 
 

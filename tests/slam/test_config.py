@@ -126,15 +126,15 @@ def test_config_from_dict_rejects_unknown_keys():
 def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
     """Changing a learning rate, loss weight, CB-KNN alpha/k0/beta, an iteration count within its cap or CB-KNN's
     mode and switches within the program's caps keeps the treedef (no recompilation, vmap-able); changing a shape,
-    the optimizer, a count past its cap or the mode to ``paper`` from a program without CB-KNN's correction changes
-    it."""
+    the optimizer, a count past its cap, the mode to ``paper`` from a program without CB-KNN's correction or a noise
+    level above 0 in a program without noise changes it."""
     base = preset("cpu")
     structure = jax.tree_util.tree_structure(base)
     traced = {"tracking.lr_trans": "0.01", "tracking.lambda_color": "0.3", "mapping.lr_rgb": "0.01",
               "densify.sil_threshold": "0.4", "cbknn.params.alpha": "0.5", "cbknn.params.k0": "3",
               "cbknn.params.beta": "0.1", "cbknn.lambda_color_keyframe": "0.7", "scene_radius_depth_ratio": "4",
               "mapping.clamp_rgb": "true", "tracking.blur.sigma_px": "1.5", "tracking.coarse.sigma_px": "2",
-              "noise.persistent_means_cm": "1", "noise.persistent_frame": "5", "tracking.iters": "5",
+              "noise.persistent_frame": "5", "tracking.iters": "5",
               "tracking.strided_iters": "20", "tracking.reselect_every": "1", "tracking.stop.window": "3",
               "mapping.iters": "25", "mapping.every": "2", "mapping.reselect_every": "10", "cbknn.mode": "code_parity",
               "cbknn.track_keyframes": "false", "cbknn.map_keyframes": "false", "cbknn.densify": "false",
@@ -146,6 +146,11 @@ def test_swept_hyperparameters_are_traced_leaves_and_shapes_modes_are_static():
     modes = {mode: apply_overrides(smoothing, {"cbknn.mode": mode}) for mode in ("off", "code_parity", "paper")}
     assert len({jax.tree_util.tree_structure(c) for c in modes.values()}) == 1
     assert jax.tree_util.tree_structure(apply_overrides(base, {"cbknn.mode": "paper"})) != structure
+    # Noise levels likewise: any level in a program that draws noise; the first level above 0 compiles the draws in.
+    noisy = base.with_caps(dataclasses.replace(base.caps, noise=True))
+    for name in ("noise.persistent_means_cm", "noise.depth_cm", "noise.map_rgb"):
+        assert jax.tree_util.tree_structure(apply_overrides(noisy, {name: "1"})) == jax.tree_util.tree_structure(noisy)
+        assert jax.tree_util.tree_structure(apply_overrides(base, {name: "1"})) != structure, name
     static = {"tracking.iters": "33", "tracking.optimizer": "lm", "mapping.window_size": "4",
               "cbknn.params.k_max": "8", "keyframe_every": "3", "raster.max_contributors": "32",
               "tracking.blur.radius_px": "4", "mapping.reselect_every": "1", "mapping.strided_iters": "10"}
