@@ -33,10 +33,11 @@ chromium:
 demo: install
 	$(BIN)/gsjax run --dataset synthetic --out outputs/demo --overwrite
 
-# The default suite is mostly XLA compilation of tiny programs: two pytest workers (pytest-xdist, a test file each
-# at a time so its module fixtures are built once; TEST_WORKERS=0: one process). (LLVM at -O0 compiled 25 % faster
-# but broke the bitwise CB-KNN-equals-canonical tests: not used.)
-TEST_WORKERS ?= 2
+# The default suite is mostly XLA compilation of tiny programs: three pytest workers (pytest-xdist, a test file each
+# at a time so its module fixtures are built once; TEST_WORKERS=0: one process). Three on two cores: the suite also
+# waits on its subprocesses, the browser and compile locks (warm on 2 cores: 4:17 with 2 workers, 3:40 with 3, 3:55
+# with 4). (LLVM at -O0 compiled 25 % faster but broke the bitwise CB-KNN-equals-canonical tests: not used.)
+TEST_WORKERS ?= 3
 test: install chromium lint docs-quick
 	$(BIN)/python -m pytest -q -m "not slow" $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile) tests
 
