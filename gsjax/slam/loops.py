@@ -205,7 +205,7 @@ class LoopCaps:
         if not all(is_checkable(c) for c in counts) or not (isinstance(mode, str) or is_checkable(mode)):
             return None
         paper = config.cbknn.smooth_renders
-        levels = jax.tree_util.tree_leaves(config.noise.levels())
+        levels = config.noise.levels()
         noise = not is_checkable(levels) or any(bool(np.any(np.asarray(v) > 0)) for v in levels)
         top = [int(np.max(np.asarray(c))) for c in counts]
         bound = (lambda c: c) if exact else cap_for

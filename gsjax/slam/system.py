@@ -201,13 +201,12 @@ def _coast(state: SlamState, frame: Frame, config: SlamConfig, pose) -> tuple[Sl
 def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics, pose):
     t = state.frame
     # A map handed in with non-finite parameters (a restored or edited state) is cleaned before tracking sees it.
-    clean, freed_before = state.gaussians.without_nonfinite()
+    stored, freed_before = state.gaussians.without_nonfinite()
     noisy = compiles_noise(config)  # (static: a program whose levels are all 0 compiles no draw)
-    stored = perturb_stored_map(clean, config.noise, t, jax.random.fold_in(state.key, NOISE_STREAM + 2)) if noisy \
-        else clean
-    state = dataclasses.replace(state, gaussians=stored)
     if noisy:
+        stored = perturb_stored_map(stored, config.noise, t, jax.random.fold_in(state.key, NOISE_STREAM + 2))
         frame = add_depth_noise(frame, config.noise, jax.random.fold_in(state.key, NOISE_STREAM))
+    state = dataclasses.replace(state, gaussians=stored)
     started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
     keyframe = _is_keyframe(state, config.keyframe_every)
     problem = tracking_problem(state, frame.color, frame.depth, config, intrinsics)
