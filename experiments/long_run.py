@@ -79,7 +79,7 @@ def long_run(frames: int, work: Path, downscale: int = 4, every: int = 100, chec
         checkpoint.Checkpoints.save = save
     stored = checkpoint.Checkpoints(Path(work) / "checkpoints")
     try:
-        per_frame = stored.outputs(frames)
+        per_frame = {name: values.tolist() for name, values in stored.outputs(frames)._asdict().items()}
     finally:
         stored.close()
     return dict(frames=frames, width=sequence.intrinsics.width, height=sequence.intrinsics.height,

@@ -36,6 +36,7 @@ import orbax.checkpoint as ocp
 from gsjax.eval.run_metrics import CheckpointSummary
 from gsjax.io.atomic import atomic_write_bytes, remove_stale_temporaries
 from gsjax.slam.state import KeyframeBuffer, SlamState, encode_color, encode_depth
+from gsjax.slam.system import StepOutputs
 
 _IMAGES = ("color", "depth")  # the keyframe fields stored as files, one per slot
 # Checkpoints written before keyframes were stored compactly hold float32 images: encoded on restore.
@@ -104,12 +105,12 @@ class RunLedger:
 
 class Restored(NamedTuple):
     """A restored checkpoint: ``step`` (frames done), ``state``, ``ledger`` and ``outputs`` (the per-frame outputs
-    of frames 0..step-1 as ``{field: list}``)."""
+    of frames 0..step-1, [step, ...] numpy arrays)."""
 
     step: int
     state: SlamState
     ledger: RunLedger
-    outputs: dict
+    outputs: StepOutputs
 
 
 def _without_images(state: SlamState) -> dict:
@@ -147,10 +148,10 @@ class Checkpoints:
 
     # ---------------------------------------------------------------------------------------------- writing
 
-    def save(self, state: SlamState, ledger: RunLedger, outputs: dict) -> int:
+    def save(self, state: SlamState, ledger: RunLedger, outputs: StepOutputs) -> int:
         """Write the checkpoint after ``ledger.frames_done`` frames; returns the bytes written.
 
-        ``outputs``: per-frame outputs ``{field: array [b - a]}`` of the frames since the previous checkpoint,
+        ``outputs``: the per-frame outputs ([b - a, ...] numpy) of the frames since the previous checkpoint,
         ``ledger.segments[-1] == [a, b]``; keyframe slots from ``ledger.keyframes_saved`` to the state's count are
         written now, and ``ledger.keyframes_saved`` is advanced to it.
         """
@@ -158,7 +159,7 @@ class Checkpoints:
         start, end = ledger.segments[-1]
         written = 0
         path = self.directory / "frames" / f"{start:06d}-{end:06d}.npz"
-        written += len(data := _npz_bytes({k: np.asarray(v) for k, v in outputs.items()}))
+        written += len(data := _npz_bytes({k: np.asarray(v) for k, v in outputs._asdict().items()}))
         atomic_write_bytes(path, data)
         count = int(state.keyframes.count)
         for slot in range(ledger.keyframes_saved, count):
@@ -185,17 +186,22 @@ class Checkpoints:
         meta = self._manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
         return RunLedger.from_json(meta)
 
-    def outputs(self, step: int) -> dict:
-        """The per-frame outputs of frames 0..step-1 recorded by checkpoint ``step`` (``{field: list}``)."""
+    def outputs(self, step: int) -> StepOutputs:
+        """The per-frame outputs of frames 0..step-1 recorded by checkpoint ``step``, [step, ...] numpy arrays."""
         return self._outputs(self.read_ledger(step))
 
-    def _outputs(self, ledger: RunLedger) -> dict:
+    def _outputs(self, ledger: RunLedger) -> StepOutputs:
         segments = ledger.segments
         parts = [_load_npz(self.directory / "frames" / f"{a:06d}-{b:06d}.npz") for a, b in segments]
         if [a for a, _ in segments] != [0, *[b for _, b in segments[:-1]]]:
             raise ValueError("the frame segments do not cover the run contiguously")
-        outputs = {name: np.concatenate([p[name] for p in parts]).tolist() for name in parts[0]} if parts else {}
-        lengths = {len(v) for v in outputs.values()}
+        if not parts:
+            raise ValueError("the checkpoint lists no frame segment")
+        missing = [name for name in StepOutputs._fields if name not in parts[0]]
+        if missing:
+            raise ValueError(f"the frame segments lack {', '.join(missing)}")
+        outputs = StepOutputs(*(np.concatenate([p[name] for p in parts]) for name in StepOutputs._fields))
+        lengths = {len(v) for v in outputs}
         if lengths != {ledger.frames_done}:
             raise ValueError(f"the frame segments hold {sorted(lengths)} frames, not {ledger.frames_done}")
         return outputs

@@ -1,35 +1,36 @@
 """SLAM on a live frame source (:class:`gsjax.app.live_camera.LiveCamera`), one frame at a time as frames come:
 ``gsjax run --dataset realsense --path live`` (or ``--path REC --realtime``, a recording played as if live).
 
-The loop takes the oldest frame the camera still holds (it holds the newest few and drops the rest, counted), steps
-the SLAM core on it, and stops at ``max_frames``, when the source ends, on Ctrl-C or SIGTERM (``stop``): then every
-output is written by :func:`gsjax.app.run_outputs.finish_run`, as for a recording, the dropped frames counted in
-``metrics.json``'s warnings. There is no resume: a live camera cannot be re-read."""
+The frames go through the shell's one loop (:func:`gsjax.app.session.chunk_loop`, chunks of one frame: the camera
+is waited for while the previous frame's SLAM runs) into one :class:`gsjax.app.recorder.Recorder`, as a recording's
+do: the map grows when it is full (said, and counted in ``stage_timings_s.regrow_s``), checkpoints are written every
+``checkpoint_every`` frames (a crash keeps what was mapped; there is no resume: a live camera cannot be re-read),
+and every output is written at the end. The loop takes the oldest frame the camera still holds (it holds the
+newest few and drops the rest, counted), and stops at ``max_frames``, when the source ends, on Ctrl-C or SIGTERM
+(``stop``); the dropped frames are counted in ``metrics.json``'s warnings."""
 
 from __future__ import annotations
 
 import threading
-import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
-import jax
 import numpy as np
 
+from gsjax.app.checkpoints import Checkpoints, RunLedger
+from gsjax.app.compilation_cache import exported_call
 from gsjax.app.live_camera import LiveCamera, LiveFrame
+from gsjax.app.recorder import Recorder
 from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
-from gsjax.app.run_outputs import finish_run, host_outputs, is_evaluation_frame, run_record
+from gsjax.app.run_outputs import run_record
 from gsjax.app.runner import RunOptions
-from gsjax.data.frame import DatasetError, host_frame, to_device
+from gsjax.app.session import Group, Runtime, chunk_loop, one_config, start_capacity
+from gsjax.data.frame import DatasetError, Frame, host_frame
 from gsjax.data.images import downscale_color, downscale_depth
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
-from gsjax.io.atomic import atomic_write_json
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import initial_state, keyframe_capacity_for
-from gsjax.slam.system import step
-
-_step = jax.jit(step)
 
 
 def run_live(camera: LiveCamera, config: SlamConfig, options: RunOptions, *, downscale: int, max_frames: int,
@@ -46,49 +47,61 @@ def run_live(camera: LiveCamera, config: SlamConfig, options: RunOptions, *, dow
     with locked_run_dir(out):
         if options.overwrite:
             clear_previous_run(out)
-        state = initial_state(options.capacity or 8 * height * width, height, width,
-                              keyframe_capacity_for(max_frames, config.keyframe_every), max_frames, options.seed)
-        outputs: dict[str, list] = {}
+        out.mkdir(parents=True, exist_ok=True)
+        capacity = options.capacity or start_capacity(height, width, live=True)
+        state = initial_state(capacity, height, width, keyframe_capacity_for(max_frames, config.keyframe_every),
+                              max_frames, options.seed)
         times: list[float] = []
-        kept: dict = {}
-        timings = dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0)
-        started = time.perf_counter()
+        frames = _frames(camera, downscale, max_frames, stop, times)
+
+        def record(sequence: Sequence):
+            return run_record(sequence, config, chunk=1, seed=options.seed, describe=dict(
+                describe or {}, live=dict(captured=camera.captured, dropped=camera.dropped)))
+
+        ledger = RunLedger(capacity=capacity, record={})
+        ledger.checkpoints.every = options.checkpoint_every
+        recorder = Recorder(record(_processed(camera, intrinsics, [], {})), options.outputs, ledger,
+                            checkpoints=Checkpoints(out / "checkpoints"), checkpoint_every=options.checkpoint_every)
+
+        def on_grow(group, dropped, first, last, new_capacity):
+            say(f"capacity: {dropped} new Gaussians found no free slot at frame {last}; growing the map to "
+                f"{new_capacity} slots and re-running the frame (a compilation: the camera's frames meanwhile are "
+                "dropped)")
+
         try:
-            while len(times) < max_frames and not stop.is_set():
-                t0 = time.perf_counter()
-                captured = camera.next(timeout=0.5)
-                if captured is None:
-                    if camera.ended:
-                        break
-                    continue
-                frame = _reduce(captured, downscale, len(times))
-                timings["read_frames_s"] += time.perf_counter() - t0
-                t0 = time.perf_counter()
-                state, frame_outputs = _step(state, to_device(frame), config, intrinsics)
-                frame_outputs = jax.device_get(frame_outputs)
-                timings["slam_s"] += time.perf_counter() - t0
-                if is_evaluation_frame(len(times), options.eval_every) or len(times) < 2:
-                    kept[len(times)] = frame
-                times.append(captured.timestamp)
-                for name, value in frame_outputs._asdict().items():
-                    outputs.setdefault(name, []).append(np.asarray(value).tolist())
+            for chunk in chunk_loop([Group(state, config)], frames, intrinsics, chunk=1, on_grow=on_grow,
+                                    runtime=Runtime(exported_call())):
+                state, outputs = one_config(chunk)
+                recorder.add(chunk.start, chunk.frames, state, outputs, seconds=chunk.seconds,
+                             regrow_seconds=chunk.regrow_seconds, read_seconds=chunk.read_seconds)
                 if observe is not None:
-                    observe(state, outputs)
+                    observe(state, recorder.outputs)
         except KeyboardInterrupt:
             say("gsjax run: stopped; writing the outputs of the frames processed")
         finally:
             camera.stop()
-        if not times:
+            recorder.close()
+        if not recorder.frames_done:
             raise DatasetError(f"{camera.source}: no frame was processed (the camera gave none)")
-        timings["wall_s"] = time.perf_counter() - started
-        sequence = _processed(camera, intrinsics, np.asarray(times), kept)
+        sequence = _processed(camera, intrinsics, times[:recorder.frames_done], recorder.kept)  # not one read ahead
+        recorder.write_config(record(sequence))
         dropped = f"live: {camera.dropped} of {camera.captured} captured frames were dropped (SLAM slower than " \
-                  f"the camera: {len(times)} processed)"
-        record = run_record(sequence, config, chunk=1, seed=options.seed,
-                            describe=dict(describe or {}, live=dict(captured=camera.captured, dropped=camera.dropped)))
-        atomic_write_json(out / "config.json", record.to_json())
-        return finish_run(sequence, config, options.outputs, jax.device_get(state), host_outputs(outputs), timings,
-                          record, input_warnings=(dropped,) if camera.dropped else (), frames=kept)
+                  f"the camera: {recorder.frames_done} processed)"
+        return recorder.finish(sequence, config, state, input_warnings=(dropped,) if camera.dropped else ())
+
+
+def _frames(camera: LiveCamera, downscale: int, max_frames: int, stop: threading.Event,
+            times: list[float]) -> Iterator[Frame]:
+    """The camera's frames as they come (the oldest it holds first), until ``max_frames``, the end of the source or
+    ``stop``; each frame's timestamp (s) appended to ``times``."""
+    while len(times) < max_frames and not stop.is_set():
+        captured = camera.next(timeout=0.5)
+        if captured is None:
+            if camera.ended:
+                return
+            continue
+        times.append(captured.timestamp)
+        yield _reduce(captured, downscale, len(times) - 1)
 
 
 def _reduce(captured: LiveFrame, factor: int, index: int):
@@ -96,7 +109,7 @@ def _reduce(captured: LiveFrame, factor: int, index: int):
                       False, index)
 
 
-def _processed(camera: LiveCamera, intrinsics, times: np.ndarray, kept: dict) -> Sequence:
+def _processed(camera: LiveCamera, intrinsics, times: list[float], kept: dict) -> Sequence:
     """The frames processed, as the :class:`Sequence` the outputs are written from (no ground truth; only the kept
     evaluation frames can be read again)."""
     def read(i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -105,5 +118,6 @@ def _processed(camera: LiveCamera, intrinsics, times: np.ndarray, kept: dict) ->
         return kept[i].color, kept[i].depth
 
     name = "realsense-live" if camera.source == "live" else Path(camera.source).stem
-    return Sequence(name=name, intrinsics=intrinsics, timestamps=times, c2w=np.tile(np.eye(4), (len(times), 1, 1)),
-                    pose_valid=np.zeros(len(times), bool), read_rgbd=read, depth_scale=camera.depth_units_per_metre)
+    return Sequence(name=name, intrinsics=intrinsics, timestamps=np.asarray(times, np.float64),
+                    c2w=np.tile(np.eye(4), (len(times), 1, 1)), pose_valid=np.zeros(len(times), bool), read_rgbd=read,
+                    depth_scale=camera.depth_units_per_metre)

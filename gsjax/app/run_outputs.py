@@ -7,9 +7,9 @@ for PSNR / MS-SSIM / SSIM / depth L1 (and CB-KNN's K and rho maps when CB-KNN sm
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -66,8 +66,8 @@ def finish_run(sequence: Sequence, config: SlamConfig, options: OutputOptions, s
     sweep``: evaluate it and write ``trajectory.txt``, ``groundtruth.txt`` (when the sequence has ground truth),
     ``trajectory.png``, ``renders/``, ``map.ply``, ``report.html`` and ``metrics.json`` into ``options.out``.
 
-    ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` on the host ([T, ...] numpy arrays,
-    :func:`host_outputs`); ``timings``: stage times (s);
+    ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` on the host ([T, ...] numpy arrays);
+    ``timings``: stage times (s);
     ``record``: what ``config.json`` holds; ``metrics.json``'s warnings are ``input_warnings`` (what opening the
     sequence reported), the run's own (:func:`gsjax.app.run_warnings.run_warnings` of ``outputs``) and
     ``resume_warnings``; ``checkpoints``: the checkpoints the run wrote; ``frames``: host frames the run still
@@ -153,16 +153,6 @@ def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOption
     timings["report_s"] = time.perf_counter() - t0
     atomic_write_json(out / "metrics.json", metrics.to_json())
     return metrics
-
-
-def host_outputs(series: Mapping[str, Any]) -> StepOutputs:
-    """Per-frame outputs by name (lists, as a run's checkpoints keep them, or arrays) as :class:`StepOutputs` of
-    numpy arrays [T, ...]; ValueError naming the series missing (a checkpoint older than a series)."""
-    missing = [name for name in StepOutputs._fields if name not in series]
-    if missing:
-        raise ValueError(f"the run's per-frame outputs lack {', '.join(missing)} (a checkpoint of an older gsjax: "
-                         "run it again with --overwrite)")
-    return StepOutputs(*(np.asarray(series[name]) for name in StepOutputs._fields))
 
 
 # The per-frame outputs metrics.json keeps (the flags are listed as frame numbers: skipped_frames, ...).

@@ -1,14 +1,9 @@
-"""The imperative shell of ``gsjax run``: stream chunks of frames through the jitted SLAM scan, checkpoint,
-grow capacity, report progress; then :mod:`gsjax.app.run_outputs` evaluates and writes the outputs.
-
-The chunk loop is :func:`gsjax.slam.driver.chunk_loop` (the same one :func:`gsjax.slam.run` and the sweep use;
-it grows the map capacity, logged here, when a chunk could not insert every new Gaussian). Between chunks this
-module:
-
-* checkpoints the run every ``checkpoint_every`` frames (:mod:`gsjax.app.checkpoints`: the map and what is new
-  since the previous checkpoint) so ``--resume`` continues exactly where the run stopped, from the newest
-  checkpoint that reads back whole;
-* shows a progress bar (frame, tracking loss, Gaussians, ATE so far when ground truth exists, frames/s).
+"""``gsjax run`` on a recording and its ``--resume``: the run folder checked and locked, the newest readable
+checkpoint restored, the frames through the shell's one loop (:func:`gsjax.app.session.chunk_loop`, which grows the
+map's capacity, said here, when a chunk could not insert every new Gaussian) into one
+:class:`gsjax.app.recorder.Recorder` (checkpoints every ``checkpoint_every`` frames, so ``--resume`` continues
+exactly where the run stopped; the outputs at the end), with a progress bar (frame, tracking loss, Gaussians, ATE
+so far when ground truth exists, frames/s).
 
 Ground truth is for evaluation only: the frames reach the SLAM core with their GT pose blanked
 (:func:`gsjax.data.frame.without_ground_truth`). What the run handles in a defined way but a user should know
@@ -27,19 +22,21 @@ from pathlib import Path
 
 import numpy as np
 
+from gsjax.app.checkpoints import Checkpoints, RunLedger
 from gsjax.app.compilation_cache import exported_call
 from gsjax.app.memory import limit_malloc_arenas
 from gsjax.app.progress import Progress
+from gsjax.app.recorder import Recorder
 from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
-from gsjax.app.run_outputs import OutputOptions, finish_run, host_outputs, is_evaluation_frame, run_record
+from gsjax.app.run_outputs import OutputOptions, run_record
 from gsjax.app.run_warnings import run_warnings
+from gsjax.app.session import Group, Runtime, chunk_loop, one_config, sequence_frames, start_capacity
 from gsjax.camera import invert_transform
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.eval.trajectory import ate_so_far
-from gsjax.io.atomic import atomic_write_json, remove_stale_temporaries
+from gsjax.io.atomic import remove_stale_temporaries
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.driver import chunk_loop
 from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs
 
@@ -121,11 +118,9 @@ def run_slam(
 
 
 def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, describe: dict | None,
-                on_chunk: Callable[[int], None] | None, observe: Callable[[SlamState, dict], None] | None,
+                on_chunk: Callable[[int], None] | None, observe: Callable[[SlamState, StepOutputs], None] | None,
                 input_warnings: tuple[str, ...]) -> RunMetrics:
     """:func:`run_slam` once ``options.out`` is checked and this process holds its lock."""
-    from gsjax.app.checkpoints import Checkpoints, RunLedger
-
     out = Path(options.out)
     intrinsics = sequence.intrinsics
     height, width = intrinsics.height, intrinsics.width
@@ -138,16 +133,14 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
     for directory in (out, out / "renders"):  # what writers killed mid-write left (never a finished output)
         remove_stale_temporaries(directory)
     record = run_record(sequence, config, chunk=options.chunk, seed=options.seed, describe=describe)
-    capacity = options.capacity or 2 * height * width
     kf_capacity = keyframe_capacity_for(total, config.keyframe_every)
 
     def like(capacity: int):
         return initial_state(capacity, height, width, kf_capacity, total, options.seed)
 
-    state = like(capacity)
-    outputs: dict[str, list] = {}
-    ledger = RunLedger(capacity=capacity, record=record.resume_key(),
-                       timings=dict(read_frames_s=0.0, slam_s=0.0, checkpoint_s=0.0, regrow_s=0.0))
+    capacity = options.capacity or start_capacity(height, width)
+    state, restored_outputs = like(capacity), None
+    ledger = RunLedger(capacity=capacity, record=record.resume_key())
     resume_warnings: list[str] = []  # about this resume (a checkpoint that could not be read)
     checkpoints = Checkpoints(out / "checkpoints")
     if options.resume:
@@ -162,77 +155,52 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
             except ValueError:
                 checkpoints.close()
                 raise
-            state, outputs, ledger = restored.state, restored.outputs, restored.ledger
+            state, restored_outputs, ledger = restored.state, restored.outputs, restored.ledger
             log.info("resumed from checkpoint at frame %d (capacity %d)", ledger.frames_done, ledger.capacity)
         elif resume_warnings:
             fell_back("no checkpoint could be read: the run starts from frame 0")
     ledger.checkpoints.every = options.checkpoint_every
+    recorder = Recorder(record, options.outputs, ledger, checkpoints=checkpoints,
+                        checkpoint_every=options.checkpoint_every, outputs=restored_outputs)
     timings = ledger.timings  # cover the whole run, resumed or not
-    atomic_write_json(out / "config.json", record.to_json())
 
     _, gt_c2w, gt_valid = sequence.gt_trajectory()
     progress = Progress(total, ledger.frames_done, options.progress)
 
-    def on_grow(dropped, first, last, new_capacity):
+    def on_grow(group, dropped, first, last, new_capacity):
         progress.write(f"capacity: {dropped} new Gaussians found no free slot at frames {first}-{last}; growing the "
                        f"map to {new_capacity} slots and re-running the chunk")
 
-    pending: list = []  # the chunks' outputs since the last checkpoint
-    kept: dict = {}  # the evaluation frames read by the chunk loop, so the outputs need not read them again
+    start = ledger.frames_done
     try:
-        for chunk in chunk_loop(state, sequence.read_host, total, config, intrinsics, chunk=options.chunk,
-                                start=ledger.frames_done, on_grow=on_grow, call=exported_call()):
-            state, chunk_out, count, ledger.capacity = chunk.state, chunk.outputs, chunk.count, chunk.capacity
-            done = ledger.frames_done
-            timings["read_frames_s"] += chunk.read_seconds
-            timings["slam_s"] += chunk.seconds
-            timings["regrow_s"] += chunk.regrow_seconds
-            if ledger.first_chunk_s is None:
-                ledger.first_chunk_s = chunk.seconds
+        for chunk in chunk_loop([Group(state, config)], sequence_frames(sequence, start), intrinsics,
+                                chunk=options.chunk, start=start, on_grow=on_grow, runtime=Runtime(exported_call())):
+            state, outputs = one_config(chunk)
             # Printed as they happen; metrics.json lists them again from all the outputs (finish_run).
-            real = StepOutputs(*(np.asarray(value)[:count] for value in chunk_out))
-            for message in run_warnings(sequence, config, real, lambda t: chunk.frames[t - done], start=done,
-                                        depth_units=not ledger.depth_units_checked):
+            for message in run_warnings(sequence, config, outputs, lambda t: chunk.frames[t - chunk.start],
+                                        start=chunk.start, depth_units=not ledger.depth_units_checked):
                 progress.write(f"warning: {message}", file=sys.stderr)
-            ledger.depth_units_checked |= bool(np.any(~real.skipped))
-            kept.update((done + i, frame) for i, frame in enumerate(chunk.frames)
-                        if is_evaluation_frame(done + i, options.eval_every))
-            for name, values in real._asdict().items():
-                outputs.setdefault(name, []).extend(values.tolist())
-            pending.append(chunk_out)
-            done = ledger.frames_done = done + count
-            since = ledger.segments[-1][1] if ledger.segments else 0
-            if done - since >= options.checkpoint_every or done == total:
-                t0 = time.perf_counter()
-                ledger.segments.append([since, done])
-                new = {name: np.concatenate([np.asarray(getattr(o, name)) for o in pending])
-                       for name in StepOutputs._fields}
-                written = checkpoints.save(state, ledger, new)
-                pending = []
-                seconds = time.perf_counter() - t0
-                timings["checkpoint_s"] += seconds
-                ledger.checkpoints.add(seconds, written)
-            w2c = np.asarray(outputs["w2c"], np.float64)
-            ate = ate_so_far(invert_transform(w2c), gt_c2w, gt_valid)
-            fields = dict(loss=f"{outputs['tracking_loss'][-1]:.1f}", gaussians=outputs["num_gaussians"][-1],
+            ledger.depth_units_checked |= bool(np.any(~outputs.skipped))
+            done = chunk.start + chunk.count
+            recorder.add(chunk.start, chunk.frames, state, outputs, seconds=chunk.seconds,
+                         regrow_seconds=chunk.regrow_seconds, read_seconds=chunk.read_seconds, last=done == total)
+            so_far = recorder.outputs
+            ate = ate_so_far(invert_transform(np.asarray(so_far.w2c, np.float64)), gt_c2w, gt_valid)
+            fields = dict(loss=f"{so_far.tracking_loss[-1]:.1f}", gaussians=int(so_far.num_gaussians[-1]),
                           fps=f"{done / max(timings['slam_s'], 1e-9):.2f}")
             if ate is not None:
                 fields["ate_cm"] = f"{100 * ate:.2f}"
-            progress.update(count, **fields)
+            progress.update(chunk.count, **fields)
             if observe is not None:
                 t0 = time.perf_counter()
-                observe(state, outputs)
+                observe(state, so_far)
                 timings["observe_s"] = timings.get("observe_s", 0.0) + time.perf_counter() - t0
             if on_chunk is not None:
                 on_chunk(done)
     finally:
         progress.close()
-        checkpoints.close()
-
-    timings["compile_s_estimate"] = compile_estimate(ledger.first_chunk_s, timings["slam_s"], total, options.chunk)
-    return finish_run(sequence, config, options.outputs, state, host_outputs(outputs), timings, record,
-                      input_warnings=input_warnings, resume_warnings=resume_warnings, checkpoints=ledger.checkpoints,
-                      frames=kept)
+        recorder.close()
+    return recorder.finish(sequence, config, state, input_warnings=input_warnings, resume_warnings=resume_warnings)
 
 
 def _check_resumable(saved: dict, key_now: dict, out: Path) -> None:
@@ -245,14 +213,3 @@ def _check_resumable(saved: dict, key_now: dict, out: Path) -> None:
                 f"--resume: the checkpoint in {out / 'checkpoints'} was made with a different {key} "
                 f"({saved.get(key)!r} vs {value!r}); resume with the same options, or use a new --out"
             )
-
-
-def compile_estimate(first_chunk_s: float | None, slam_s: float, total: int, chunk: int) -> float | None:
-    """Seconds of the first chunk beyond its frames' steady cost: the first chunk's time less ``chunk`` frames at
-    the later chunks' rate per real frame (a short last chunk is padded, and padding frames cost next to nothing);
-    None with a single chunk."""
-    later_frames = total - chunk
-    if first_chunk_s is None or later_frames <= 0:
-        return None
-    per_frame = (slam_s - first_chunk_s) / later_frames
-    return max(0.0, first_chunk_s - per_frame * chunk)

@@ -3,7 +3,7 @@
 The grid is the product of ``--grid FIELD=V1,V2`` axes times the run seeds. Configs that differ only in traced
 fields (learning rates, loss weights, CB-KNN alpha / K0 / beta, noise levels, ...) share one compiled program; a
 static field in the grid (an iteration count, a mode) gives one program per value. ``--batch B`` configs run at a
-time over the same frames (:func:`gsjax.slam.driver.batch_chunk_loop`, bounding memory); within a batch,
+time over the same frames (:func:`gsjax.app.session.chunk_loop`, bounding memory); within a batch,
 ``--vmap-width V`` configs are stacked and run as ``jax.vmap`` of the whole tracking + mapping scan, the stacked
 axis sharded over every device of a 1-D mesh. With V = 1 (the CPU default: XLA:CPU runs the vmapped scan slower
 per config than the plain one) each config is one call of the plain program, configs spread round-robin over the
@@ -39,6 +39,7 @@ import numpy as np
 from gsjax.app.compilation_cache import exported_call
 from gsjax.app.progress import Progress
 from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
+from gsjax.app.session import Group, Runtime, chunk_loop, sequence_frames, start_capacity
 from gsjax.app.sweep_devices import batch_mesh, place_batch, share_results, to_host
 from gsjax.app.sweep_resume import finished_runs, prepare_rerun, run_folder
 from gsjax.config_text import apply_overrides, canonical_name
@@ -46,7 +47,7 @@ from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.io.atomic import atomic_write_bytes, atomic_write_json, remove_stale_temporaries
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.driver import Group, batch_chunk_loop, concat_outputs, stack_trees, static_key, unstack_tree
+from gsjax.slam.driver import concat_outputs, stack_trees, static_key, unstack_tree
 from gsjax.slam.loops import LoopCaps, common_caps
 from gsjax.slam.state import initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs
@@ -232,7 +233,9 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
 
 def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: list[int], options: SweepOptions,
            writer: bool, describe: dict | None, input_warnings: tuple[str, ...], say) -> list[dict]:
-    from gsjax.app.run_outputs import OutputOptions, finish_run, is_evaluation_frame, run_record
+    from gsjax.app.checkpoints import RunLedger
+    from gsjax.app.recorder import Recorder
+    from gsjax.app.run_outputs import OutputOptions, is_evaluation_frame, run_record
 
     points = expand_grid(base, axes, seeds)
     out = Path(options.out)
@@ -278,7 +281,7 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
     try:
         for number, batch in enumerate(batches):
             kf_capacity = keyframe_capacity_for(total, batch[0].config.keyframe_every)
-            states = [initial_state(2 * height * width_px, height, width_px, kf_capacity, total, p.seed)
+            states = [initial_state(start_capacity(height, width_px), height, width_px, kf_capacity, total, p.seed)
                       for p in batch]
             groups_, members, place = _groups(states, [p.config for p in batch], width, mesh)
 
@@ -288,8 +291,8 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
                                "re-running the chunk")
 
             parts, slam_s, regrow_s, first, final_states, kept = [], 0.0, 0.0, None, [], {}
-            for chunk in batch_chunk_loop(groups_, sequence.read_host, total, k, chunk=options.chunk,
-                                          on_grow=on_grow, place=place, fetch=to_host, call=exported_call()):
+            for chunk in chunk_loop(groups_, sequence_frames(sequence), k, chunk=options.chunk, on_grow=on_grow,
+                                    runtime=Runtime(exported_call(), place, to_host)):
                 parts.append(chunk.outputs)
                 kept.update((chunk.start + i, frame) for i, frame in enumerate(chunk.frames)
                             if is_evaluation_frame(chunk.start + i, options.eval_every))
@@ -318,11 +321,12 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
                                    batch_size=len(batch))
                 if writer:
                     run_dir.mkdir(parents=True, exist_ok=True)
-                    atomic_write_json(run_dir / "config.json", record.to_json())
-                    metrics = finish_run(sequence, point.config,
-                                         OutputOptions(run_dir, options.eval_every, options.samples),
-                                         jax.device_get(state), run_outputs, run_timings, record,
-                                         input_warnings=input_warnings, frames=kept)
+                    recorder = Recorder(record, OutputOptions(run_dir, options.eval_every, options.samples),
+                                        RunLedger(capacity=int(state.gaussians.capacity), record={},
+                                                  frames_done=total, timings=run_timings),
+                                        outputs=run_outputs, kept=kept)
+                    metrics = recorder.finish(sequence, point.config, jax.device_get(state),
+                                              input_warnings=input_warnings)
                     rows.append(_row(point, metrics, seconds, run_dir.relative_to(out)))
             timings["outputs_s"] += time.perf_counter() - t0
     finally:

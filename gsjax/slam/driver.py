@@ -1,21 +1,21 @@
-"""The chunk loop: frames streamed through the jitted SLAM scan a chunk at a time, with capacity growth, for one
-config (:func:`chunk_loop`) or a batch of configs over the same frames (:func:`batch_chunk_loop`: each group of
-the batch is one config, or several stacked and vmapped into one program). ``gsjax run``, ``gsjax sweep``,
-``gsjax landscape`` and the in-memory :func:`run` all drive SLAM through :func:`batch_chunk_loop`.
+"""SLAM over whole sequences in memory (:func:`run`), and the parts every chunked run shares: a chunk's frames
+padded to the program's size (:func:`pad_chunk`), the vmapped chunk program of a batch of configs
+(:func:`run_batch_chunk`), the capacity growth rule (:func:`dropped_in`, :func:`doubled`) and stacking configs and
+states (:func:`stack_trees`). No I/O, no timing: the shell's loop (:mod:`gsjax.app.session`) runs the same chunks
+with read-ahead, timing and its hooks.
 
     from gsjax import slam
     result = slam.run(frames, slam.preset("cpu", 80), intrinsics, seed=0)   # frames: a stacked Frame [T, ...]
     result.w2c  # [T, 4, 4] estimated world-to-camera poses (the SLAM world frame is the first camera)
 
-Capacity: the map has a fixed number of slots. When a chunk could not insert every new Gaussian (in any config
-of a batch), the capacity doubles and the chunk is re-run from its saved starting state, so no Gaussian is
-dropped; the result equals a run started with the larger capacity up to float32 rounding.
+Capacity: the map has a fixed number of slots. When a chunk could not insert every new Gaussian, the capacity
+doubles and the chunk is re-run from its saved starting state, so no Gaussian is dropped; the result equals a run
+started with the larger capacity up to float32 rounding.
 """
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, NamedTuple, TypeVar, cast
 
 import jax
@@ -32,34 +32,6 @@ if TYPE_CHECKING:
     from gsjax.data.sequence import Sequence as FrameSequence
 
 _Tree = TypeVar("_Tree")
-
-
-class Chunk(NamedTuple):
-    """One processed chunk, as :func:`chunk_loop` yields it.
-
-    Attributes:
-      start: the index of its first frame in the sequence.
-      count: its number of real frames (at most the chunk size; the last chunk may be shorter).
-      frames: the ``count`` host frames read (with their ground truth, for the shell's warnings).
-      state: the state after the chunk.
-      outputs: :class:`StepOutputs` of the real frames as numpy, [count, ...].
-      capacity: the map capacity (Gaussian slots) after the chunk.
-      seconds: wall time of the chunk's final scan (s), from its launch until its outputs are on the host (the next
-        chunk's frames are read meanwhile).
-      regrow_seconds: wall time (s) of the scans redone for capacity (growing the map and re-running the chunk).
-      read_seconds: wall time (s) of reading its frames (behind the previous chunk's scan, except for the first
-        chunk).
-    """
-
-    start: int
-    count: int  # type: ignore[assignment]  # shadows tuple.count: the name is public
-    frames: list
-    state: SlamState
-    outputs: StepOutputs
-    capacity: int
-    seconds: float
-    regrow_seconds: float
-    read_seconds: float
 
 
 def pad_chunk(frames: list[Frame], size: int) -> tuple[Frame, jax.Array]:
@@ -79,6 +51,25 @@ def pad_chunk(frames: list[Frame], size: int) -> tuple[Frame, jax.Array]:
     valid = np.arange(size) < len(frames)
     padded = list(frames) + [frames[-1]] * (size - len(frames))
     return to_device(without_ground_truth(stack_frames(padded))), jnp.asarray(valid)
+
+
+def chunk_poses(poses: np.ndarray | None, start: int, count: int, size: int) -> jax.Array:
+    """The known poses of a chunk's frames, padded as :func:`pad_chunk` pads the frames.
+
+    Args:
+      poses: [T, 4, 4] known world-to-camera poses (m) indexed by frame (NaN where not known), or None.
+      start: the chunk's first frame.
+      count: its real frames.
+      size: the chunk size C.
+
+    Returns:
+      [C, 4, 4] float32: the poses of frames ``start .. start + count - 1``, the last repeated; all NaN (tracked)
+        when ``poses`` is None. Always an array, so tracking and mapping at known poses run one program.
+    """
+    if poses is None:
+        return unknown_poses(size)
+    known = np.asarray(poses[start:start + count], np.float32)
+    return jnp.asarray(np.concatenate([known, np.repeat(known[-1:], size - count, 0)]))
 
 
 @jax.jit
@@ -109,199 +100,45 @@ def _grow_batch(states, like):
     return jax.vmap(lambda s: grow_capacity(s, like.shape[0]))(states)
 
 
-def chunk_loop(
-    state: SlamState,
-    read_frame: Callable[[int], Frame],
-    total: int,
-    config: SlamConfig,
-    intrinsics: Intrinsics,
-    *,
-    chunk: int = 8,
-    start: int = 0,
-    poses: np.ndarray | None = None,
-    on_grow: Callable[[int, int, int, int], None] | None = None,
-    call: Callable | None = None,
-) -> Iterator[Chunk]:
-    """Run frames ``start`` to ``total - 1`` through SLAM for one config, ``chunk`` frames per scan.
-
-    :func:`batch_chunk_loop` with a single unstacked :class:`Group`. When a chunk dropped Gaussians, the map's
-    capacity doubles (as often as needed) and the chunk is re-run from its starting state.
+def dropped_in(outputs: StepOutputs, count: int) -> int:
+    """The Gaussians a chunk could not insert for lack of free slots: a chunk that dropped any is re-run at
+    :func:`doubled` capacity.
 
     Args:
-      state: the state after frames ``0 .. start - 1`` (:func:`gsjax.slam.state.initial_state` when ``start`` is 0).
-      read_frame: ``read_frame(i)`` gives host frame ``i``; its ground-truth pose is blanked before it reaches the
-        core.
-      total: the sequence's length; the last frame processed is ``total - 1``.
-      config: the SLAM config.
-      intrinsics: the camera at the frames' resolution.
-      chunk: frames per jitted scan (C); a short last chunk is padded to it.
-      start: the first frame to process.
-      poses: [total, 4, 4] known world-to-camera poses (m), indexed by frame, to map at instead of tracking
-        (mapping-only studies); None tracks.
-      on_grow: ``on_grow(dropped, first, last, new_capacity)`` is told before a chunk is re-run with a doubled
-        capacity: the Gaussians dropped over the chunk, its first and last frame, the new capacity; None: nothing.
-      call: how a chunk's ``run_chunk`` is called (``call(run_chunk, *args)``, as :func:`batch_chunk_loop`);
-        None calls it directly.
+      outputs: the chunk's outputs ([C, ...], or [V, C, ...] for a stacked group).
+      count: its real frames (the first ``count`` of C).
 
-    Yields:
-      Each chunk's :class:`Chunk` once it has run, in frame order.
+    Returns:
+      The Gaussians dropped over the real frames (every entry of a stacked group), on the host.
     """
-    for batch in batch_chunk_loop([Group(state, config)], read_frame, total, intrinsics, chunk=chunk, start=start,
-                                  poses=poses, on_grow=lambda group, *info: on_grow and on_grow(*info), call=call):
-        yield Chunk(batch.start, batch.count, batch.frames, batch.states[0], batch.outputs[0],
-                    _capacity(batch.states[0], False), batch.seconds, batch.regrow_seconds, batch.read_seconds)
+    return int(np.sum(np.asarray(outputs.dropped)[..., :count]))
 
 
-class Group(NamedTuple):
-    """One program call's worth of a batch: a state and its config, or V of each stacked and run as one program.
-
-    Attributes:
-      state: the :class:`SlamState` to continue from, or, when ``stacked``, V states stacked on a leading axis
-        (:func:`stack_trees`).
-      config: its :class:`SlamConfig`, or, when ``stacked``, V configs with the same static fields stacked on a
-        leading axis.
-      stacked: whether ``state`` and ``config`` are stacked and run vmapped (:func:`run_batch_chunk`); False by
-        default.
-    """
-
-    state: SlamState
-    config: SlamConfig
-    stacked: bool = False
-
-
-class BatchChunk(NamedTuple):
-    """One chunk of :func:`batch_chunk_loop`: as :class:`Chunk`, with a new state and outputs per group.
-
-    Attributes:
-      start: the index of its first frame in the sequence.
-      count: its number of real frames (at most the chunk size; the last chunk may be shorter).
-      frames: the ``count`` host frames read (with their ground truth), shared by every group.
-      states: per group, the :class:`SlamState` after the chunk (V stacked states for a stacked group), on the
-        device.
-      outputs: per group, the :class:`StepOutputs` of the real frames as numpy, [count, ...], or [V, count, ...]
-        for a stacked group.
-      seconds: wall time (s) from stacking the chunk's frames and launching every group's chunk until all their
-        outputs are on the host (the next chunk's frames are read meanwhile), the scans redone for capacity aside.
-      regrow_seconds: wall time (s) of the scans redone for capacity, summed over the groups.
-      read_seconds: wall time (s) of reading its frames (behind the previous chunk's scans, except for the first
-        chunk).
-    """
-
-    start: int
-    count: int  # type: ignore[assignment]  # shadows tuple.count: the name is public
-    frames: list
-    states: list
-    outputs: list
-    seconds: float
-    regrow_seconds: float
-    read_seconds: float
-
-
-def _call(group: Group, frames, valid, intrinsics, poses, call: Callable | None):
-    if group.stacked:
-        return run_batch_chunk(group.state, frames, valid, group.config, intrinsics, poses)
-    if call is not None:
-        return call(run_chunk, group.state, frames, valid, group.config, intrinsics, poses)
-    return run_chunk(group.state, frames, valid, group.config, intrinsics, poses)
-
-
-def batch_chunk_loop(
-    groups: list[Group],
-    read_frame: Callable[[int], Frame],
-    total: int,
-    intrinsics: Intrinsics,
-    *,
-    chunk: int = 8,
-    start: int = 0,
-    poses: np.ndarray | None = None,
-    on_grow: Callable[[int, int, int, int, int], None] | None = None,
-    place: Callable | None = None,
-    fetch: Callable = jax.device_get,
-    call: Callable | None = None,
-) -> Iterator[BatchChunk]:
-    """:func:`chunk_loop` for several groups over the same frames, each chunk's frames read once.
-
-    Every group's chunk is dispatched before any result is awaited, so groups placed on different devices run at
-    the same time. The next chunk's frames are read on the host while the current one runs. A group whose chunk
-    dropped Gaussians is grown (capacity doubled, every entry of a stacked group) and re-run on its own, as often
-    as needed.
+def capacity_of(state: SlamState, stacked: bool = False) -> int:
+    """The map's capacity of a state.
 
     Args:
-      groups: the groups to run, each a state and its config (:class:`Group`).
-      read_frame: ``read_frame(i)`` gives host frame ``i``; its ground-truth pose is blanked before it reaches the
-        core.
-      total: the sequence's length; the last frame processed is ``total - 1``.
-      intrinsics: the camera at the frames' resolution.
-      chunk: frames per jitted scan (C); a short last chunk is padded to it.
-      start: the first frame to process (the groups' states are those after frames ``0 .. start - 1``).
-      poses: [total, 4, 4] known world-to-camera poses (m), indexed by frame, to map at instead of tracking (NaN
-        where not known: tracked); None tracks.
-      on_grow: ``on_grow(group, dropped, first, last, new_capacity)`` is told before a group's chunk is re-run with a
-        doubled capacity: the group's index, the Gaussians dropped over the chunk (all its entries), the chunk's
-        first and last frame, the new capacity; None: nothing.
-      place: ``place(group_index, state)`` puts a grown state back where the group lives; None: JAX's default
-        placement.
-      fetch: brings a chunk's outputs to the host (a multi-process sweep gathers a group sharded over processes);
-        ``jax.device_get`` by default.
-      call: ``call(run_chunk, *args)`` runs a one-config group's chunk; None: ``run_chunk(*args)``. The shell passes
-        :meth:`gsjax.app.programs.ExportedPrograms.call`, which skips tracing in a warm process.
+      state: a state, or (``stacked``) V states stacked on a leading axis.
+      stacked: whether ``state`` is V stacked states.
 
-    Yields:
-      Each chunk's :class:`BatchChunk` once every group has run it, in frame order.
+    Returns:
+      The number of Gaussian slots (of each of the V states).
     """
-    place = place or (lambda index, state: state)
-    states = [g.state for g in groups]
-
-    def read(first: int) -> tuple[list, float]:
-        """The host frames of the chunk from frame ``first``, and the seconds spent reading them."""
-        t0 = time.perf_counter()
-        host = [read_frame(i) for i in range(first, min(first + chunk, total))]
-        return host, time.perf_counter() - t0
-
-    done = start
-    upcoming = read(done) if done < total else None
-    while done < total:
-        assert upcoming is not None  # read while done < total
-        host, read_s = upcoming
-        count = len(host)
-        t0 = time.perf_counter()
-        frames, valid = pad_chunk(host, chunk)
-        # Always an array (NaN where not known): tracking and mapping at known poses run one program.
-        chunk_poses = unknown_poses(chunk)
-        if poses is not None:
-            host_poses = np.asarray(poses[done:done + count], np.float32)
-            chunk_poses = jnp.asarray(np.concatenate([host_poses, np.repeat(host_poses[-1:], chunk - count, 0)]))
-        launched = [_call(g._replace(state=s), frames, valid, intrinsics, chunk_poses, call)
-                    for g, s in zip(groups, states)]
-        # The next chunk is read (on the host: no device transfer, which would wait for this chunk) while this one
-        # runs (dispatch is asynchronous), so reading overlaps the SLAM work.
-        upcoming = read(done + count) if done + count < total else None
-        new_states, outputs, regrow_s = [], [], 0.0
-        for index, (group, (new_state, out)) in enumerate(zip(groups, launched)):
-            out = fetch(out)
-            state = states[index]
-            while (dropped := int(np.sum(np.asarray(out.dropped)[..., :count]))) > 0:
-                t1 = time.perf_counter()
-                capacity = 2 * _capacity(state, group.stacked)
-                if on_grow is not None:
-                    on_grow(index, dropped, done, done + count - 1, capacity)
-                state = place(index, _grow_batch(state, jnp.zeros(capacity)) if group.stacked
-                              else grow_capacity(state, capacity))
-                new_state, out = _call(group._replace(state=state), frames, valid, intrinsics, chunk_poses, call)
-                out = fetch(out)
-                regrow_s += time.perf_counter() - t1
-            new_states.append(new_state)
-            # Per-frame fields are [C, ...], or [V, C, ...] after vmap over the scan.
-            outputs.append(jax.tree_util.tree_map(
-                lambda x: np.asarray(x)[:, :count] if group.stacked else np.asarray(x)[:count], out))
-        seconds = time.perf_counter() - t0 - regrow_s
-        states = new_states
-        yield BatchChunk(done, count, host, states, outputs, seconds, regrow_s, read_s)
-        done += count
+    return int(state.gaussians.means.shape[1 if stacked else 0])
 
 
-def _capacity(state: SlamState, batched: bool) -> int:
-    return int(state.gaussians.means.shape[1 if batched else 0])
+def doubled(state: SlamState, stacked: bool = False) -> SlamState:
+    """The growth rule of every run: the map's capacity doubled, the new slots free.
+
+    Args:
+      state: a state, or (``stacked``) V states stacked on a leading axis.
+      stacked: whether ``state`` is V stacked states.
+
+    Returns:
+      The state (every entry of V stacked states) at twice the capacity.
+    """
+    capacity = 2 * capacity_of(state, stacked)
+    return _grow_batch(state, jnp.zeros(capacity)) if stacked else grow_capacity(state, capacity)
 
 
 def concat_outputs(chunks: list[StepOutputs], batched: bool = False) -> StepOutputs:
@@ -369,7 +206,7 @@ def run(
       poses: optional [T, 4, 4] world-to-camera poses (m) to map with instead of tracking.
       chunk: frames per jitted scan.
       capacity: initial map capacity in Gaussians (default 2 H W, grown as needed).
-      call: how each chunk's ``run_chunk`` is called (:func:`batch_chunk_loop`; None: directly).
+      call: ``call(run_chunk, *args)`` runs each chunk (the shell's exported program); None: directly.
 
     Returns:
       The T estimated poses, the per-frame outputs and the final state.
@@ -391,12 +228,22 @@ def run(
     height, width = intrinsics.height, intrinsics.width
     state = initial_state(capacity or 2 * height * width, height, width,
                           keyframe_capacity_for(total, config.keyframe_every), total, seed)
-    parts, chunk_state = [], state
-    for done in chunk_loop(state, read, total, config, intrinsics, chunk=chunk, poses=poses, call=call):
-        parts.append(done.outputs)
-        chunk_state = done.state
+    parts = []
+    for start in range(0, total, chunk):
+        host = [read(i) for i in range(start, min(start + chunk, total))]
+        count = len(host)
+        stacked, valid = pad_chunk(host, chunk)
+        while True:
+            args = (state, stacked, valid, config, intrinsics, chunk_poses(poses, start, count, chunk))
+            new_state, out = call(run_chunk, *args) if call is not None else run_chunk(*args)
+            out = jax.device_get(out)
+            if dropped_in(out, count) == 0:
+                break
+            state = doubled(state)
+        state = new_state
+        parts.append(jax.tree_util.tree_map(lambda x, n=count: np.asarray(x)[:n], out))
     outputs = concat_outputs(parts)
-    return RunResult(np.asarray(outputs.w2c), outputs, chunk_state)
+    return RunResult(np.asarray(outputs.w2c), outputs, state)
 
 
 # ------------------------------------------------------------------------------------------- batches

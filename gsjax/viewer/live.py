@@ -49,7 +49,7 @@ class LiveViewer:
         t0 = time.perf_counter()
         gaussians = jax.tree_util.tree_map(np.array, jax.device_get(state.gaussians))  # host copies
         self._renderer.set_map(gaussians)
-        c2w = invert_transform(outputs["w2c"])
+        c2w = invert_transform(outputs.w2c)
         count = int(state.keyframes.count)
         keyframes = np.asarray(state.keyframes.frame)[:count].astype(int)
         known = self._images.known()

@@ -8,7 +8,6 @@ import json
 
 import cv2
 import numpy as np
-import pytest
 
 from gsjax.app.cli import main
 from gsjax.data import write_tum
@@ -48,15 +47,3 @@ def test_a_run_and_a_one_config_sweep_write_the_same_metrics_and_config(tmp_path
     # The command lines differ in one place: the run's override is the sweep's grid value.
     assert {**sweep_config.pop("overrides"), **values} == run_config.pop("overrides")
     assert sweep_config == run_config
-
-
-def test_host_outputs_are_typed_and_name_a_missing_series():
-    from gsjax.app.run_outputs import host_outputs
-    from gsjax.slam.system import StepOutputs
-
-    series = {name: [0.0, 1.0] for name in StepOutputs._fields}
-    outputs = host_outputs(series)
-    assert isinstance(outputs, StepOutputs) and outputs.tracking_loss.tolist() == [0.0, 1.0]
-    del series["depth_valid"], series["tracking_iters"]
-    with pytest.raises(ValueError, match="lack tracking_iters, depth_valid"):
-        host_outputs(series)

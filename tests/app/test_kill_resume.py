@@ -180,7 +180,7 @@ def test_a_checkpoint_writes_the_map_and_what_is_new_since_the_previous_one(fini
     try:
         assert checkpoints.steps() == [FRAMES, CHUNK]
         ledger = checkpoints.read_ledger(FRAMES)
-        assert len(checkpoints.outputs(FRAMES)["w2c"]) == FRAMES
+        assert len(checkpoints.outputs(FRAMES).w2c) == FRAMES
     finally:
         checkpoints.close()
     assert ledger.segments == [[0, CHUNK], [CHUNK, FRAMES]] and ledger.keyframes_saved == 2

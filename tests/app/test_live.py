@@ -8,15 +8,19 @@ import json
 import os
 import signal
 import threading
+import time
 
 import pytest
 
 from gsjax.app.cli import main
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
-from tests.support.tiny_slam import HEIGHT, TINY_OVERRIDES, WIDTH
+from tests.support.tiny_slam import CAPACITY, HEIGHT, TINY_OVERRIDES, WIDTH
 
 pytest.importorskip("pyrealsense2")
-TINY = [token for name, value in TINY_OVERRIDES.items() for token in (f"--{name}", value)]
+# The live runs start at H W slots (not the camera's 8 H W): the capacity test grows into this program.
+START = CAPACITY // 2
+TINY = ["--capacity", str(START),
+        *[token for name, value in TINY_OVERRIDES.items() for token in (f"--{name}", value)]]
 
 
 @pytest.fixture(scope="module")
@@ -48,18 +52,46 @@ def test_a_recording_played_in_real_time_drops_what_slam_cannot_keep_up_with(rec
     assert f"live: {live['dropped']} of {live['captured']} captured frames were dropped" in metrics["warnings"][0]
 
 
-def test_sigterm_stops_a_live_run_and_writes_its_outputs(recording, tmp_path, capsys):
+def test_a_live_run_that_outgrows_its_start_capacity_keeps_adding_gaussians_and_says_it_grew(recording, tmp_path,
+                                                                                          capsys):
+    """Capacity H W / 2, fewer slots than the first frame's new Gaussians (one per pixel with depth): the map doubles
+    (said on the terminal), the frame is re-run and nothing is dropped, whatever frames the playback leaves SLAM;
+    checkpoints are written as for a recording (a crash keeps what was mapped)."""
     out = tmp_path / "run"
-    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGTERM))  # the step compiled already
-    timer.start()
+    argv = ["run", "--dataset", "realsense", "--path", str(recording), "--realtime", "--out", str(out), *TINY]
+    argv[argv.index("--capacity") + 1] = str(START // 2)
+    assert main([*argv, "--checkpoint-every", "1"]) == 0
+    log = capsys.readouterr().out
+    metrics, _ = live_result(out)
+    assert f"found no free slot at frame 0; growing the map to {START} slots and re-running the frame" in log
+    assert metrics["capacity"] >= START and metrics["num_gaussians"] > START // 2
+    assert metrics["per_frame"]["added"][0] > START // 2 and not any(metrics["per_frame"]["dropped"])
+    assert metrics["stage_timings_s"]["regrow_s"] > 0
+    assert metrics["checkpoints"]["count"] == metrics["frames"] and (out / "checkpoints").is_dir()
+
+
+def test_sigterm_stops_a_live_run_and_writes_its_outputs(recording, tmp_path, capsys):
+    """SIGTERM once the first frame is checkpointed (not after a fixed time, which a loaded machine can outlast before
+    any frame is processed): the run stops there with every output written."""
+    out = tmp_path / "run"
+    stopped = threading.Event()
+
+    def stop_after_the_first_frame():
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoints" / "1").is_dir() and time.monotonic() < deadline and not stopped.is_set():
+            time.sleep(0.01)
+        if not stopped.is_set():
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=stop_after_the_first_frame, daemon=True).start()
     try:
         assert main(["run", "--dataset", "realsense", "--path", str(recording), "--realtime", "--out", str(out),
-                     *TINY]) == 0
+                     *TINY, "--checkpoint-every", "1"]) == 0
     finally:
-        timer.cancel()
+        stopped.set()
     capsys.readouterr()
     metrics, live = live_result(out)
-    assert live["captured"] < 55  # stopped a second in, not at the end of the 2-second recording
+    assert live["captured"] < 55  # stopped early, not at the end of the 2-second recording
     assert metrics["frames"] >= 1 and (out / "trajectory.txt").is_file() and (out / "map.ply").is_file()
     assert signal.getsignal(signal.SIGTERM) is not None  # the run restored the handler it replaced
 

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from gsjax.app.checkpoints import Checkpoints
+from gsjax.app.recorder import compile_estimate
 from gsjax.app.run_dir import holder
-from gsjax.app.runner import compile_estimate, run_slam
+from gsjax.app.runner import run_slam
 from gsjax.config_text import apply_overrides
 from gsjax.eval.run_metrics import read_run_metrics
 from gsjax.io.ply import read_ply
@@ -24,10 +25,11 @@ OUTPUTS = ("trajectory.txt", "map.ply")
 
 
 def saved_outputs(out):
-    """The per-frame outputs (every StepOutputs field, full float32 precision) of the newest checkpoint."""
+    """The per-frame outputs (every StepOutputs field, full float32 precision) of the newest checkpoint, by name as
+    lists (compared whole with ==)."""
     checkpoints = Checkpoints(out / "checkpoints")
     try:
-        return checkpoints.outputs(checkpoints.latest())
+        return {name: values.tolist() for name, values in checkpoints.outputs(checkpoints.latest())._asdict().items()}
     finally:
         checkpoints.close()
 

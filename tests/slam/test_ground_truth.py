@@ -30,9 +30,10 @@ def run(dataset: str, path: Path, out: Path, downscale: int = 1) -> dict:
 
 
 def per_frame_outputs(out: Path) -> dict:
+    """The newest checkpoint's per-frame outputs by name, as lists (compared whole with ==)."""
     checkpoints = Checkpoints(out / "checkpoints")
     try:
-        return checkpoints.outputs(checkpoints.latest())
+        return {name: values.tolist() for name, values in checkpoints.outputs(checkpoints.latest())._asdict().items()}
     finally:
         checkpoints.close()
 

@@ -31,8 +31,8 @@ def main(trace: str, kill_at: str, argv: list[str]) -> int:
     import gsjax.app.cli
     import gsjax.app.run_outputs
     import gsjax.app.runner
+    import gsjax.app.session as session
     import gsjax.io.atomic as atomic
-    import gsjax.slam.driver as driver
 
     log = open(trace, "a", buffering=1)
 
@@ -72,13 +72,13 @@ def main(trace: str, kill_at: str, argv: list[str]) -> int:
 
     async_path.rename = traced_rename
 
-    original_pad = driver.pad_chunk
+    original_pad = session.pad_chunk
 
     def traced_pad(frames, size):
         event(f"scan:{int(frames[0].index)}")
         return original_pad(frames, size)
 
-    driver.pad_chunk = traced_pad
+    session.pad_chunk = traced_pad
     return gsjax.app.cli.main(argv)
 
 

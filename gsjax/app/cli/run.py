@@ -23,6 +23,9 @@ def add(sub) -> None:
     p.add_argument("--checkpoint-every", type=int, default=8, metavar="N",
                    help="checkpoint after the first chunk that completes N frames since the last checkpoint, and at "
                         "the end (default 8); a checkpoint writes the map and what is new since the previous one")
+    p.add_argument("--capacity", type=int, default=None, metavar="N",
+                   help="the map's Gaussian slots at the start (default 2 H W, a live camera's 8 H W); a full map "
+                        "doubles, re-running the chunk")
     p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--viewer", action="store_true",
@@ -60,8 +63,8 @@ def run_live(args) -> int:
         if value:
             raise common.UserError(f"{flag} does not apply to a live camera (--path live / --realtime)")
     check_run_dir(args.out, overwrite=args.overwrite)
-    options = RunOptions(out=args.out, chunk=1, checkpoint_every=1, seed=args.seed, overwrite=args.overwrite,
-                         eval_every=args.eval_every, progress=False)
+    options = RunOptions(out=args.out, chunk=1, checkpoint_every=args.checkpoint_every, seed=args.seed,
+                         overwrite=args.overwrite, eval_every=args.eval_every, capacity=args.capacity, progress=False)
     try:
         camera = LiveCamera(LIVE if str(args.path) == LIVE else args.path)
     except ImportError as error:
@@ -152,8 +155,8 @@ def run(args) -> int:
 
         check_listen_address(args.viewer_host)
     options = RunOptions(out=args.out, chunk=args.chunk, checkpoint_every=args.checkpoint_every, seed=args.seed,
-                         resume=args.resume,
-                         overwrite=args.overwrite, eval_every=args.eval_every, progress=not args.no_progress)
+                         resume=args.resume, overwrite=args.overwrite, eval_every=args.eval_every,
+                         capacity=args.capacity, progress=not args.no_progress)
     check_run_dir(args.out, resume=args.resume, overwrite=args.overwrite)  # before reading any data
     (sequence, factor), input_warnings = common.dataset_warnings(lambda: common.open_run_sequence(args))
     describe = common.describe_run(args, sequence, factor)
