@@ -37,7 +37,7 @@ def long_run(frames: int, work: Path, downscale: int = 4, every: int = 100, chec
     from gsjax.app.checkpoints import checkpoint_bytes
     from gsjax.app.compilation_cache import enable_compilation_cache
     from gsjax.app.runner import RunOptions, run_slam
-    from gsjax.config_text import apply_overrides
+    from gsjax.config.text import apply_overrides
     from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
     from gsjax.slam.presets import preset
 

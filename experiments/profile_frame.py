@@ -113,7 +113,7 @@ def step_stages(compiled, args, repeats: int, step_ms: float) -> dict:
 def device_stages(sequence, config, frame_index: int, repeats: int) -> dict:
     """Milliseconds per stage of frame ``frame_index`` on the map SLAM built from the frames before it."""
     from gsjax import slam
-    from gsjax.data.frame import to_device, without_ground_truth
+    from gsjax.frame import to_device, without_ground_truth
     from gsjax.raster import render
     from gsjax.raster.binning import TileGrid, bin_gaussians
     from gsjax.raster.project import project
@@ -199,8 +199,8 @@ def device_stages(sequence, config, frame_index: int, repeats: int) -> dict:
 def compare(sequence, config, frame_index: int, repeats: int, variants: dict) -> dict:
     """Median ms of the whole step and of the guarded tracker per named override set, interleaved per repeat."""
     from gsjax import slam
-    from gsjax.config_text import apply_overrides
-    from gsjax.data.frame import to_device, without_ground_truth
+    from gsjax.config.text import apply_overrides
+    from gsjax.frame import to_device, without_ground_truth
     from gsjax.slam.system import predicted_pose, step
     from gsjax.slam.tracking import TrackingProblem, track_guarded
 
@@ -268,7 +268,7 @@ def main(argv=None) -> int:
     from gsjax.app.compilation_cache import enable_compilation_cache
 
     enable_compilation_cache()
-    from gsjax.config_text import apply_overrides
+    from gsjax.config.text import apply_overrides
 
     sequence, config = open_sequence_for(args.sequence, args.path, args.frame + 1)
     config = apply_overrides(config, dict(item.split("=", 1) for item in args.set))

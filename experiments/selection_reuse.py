@@ -31,7 +31,7 @@ ITERATIONS = (1, 2, 5, 10, 20, 40)
 
 def measure(sequence, config, frame_index: int) -> list[dict]:
     from gsjax import slam
-    from gsjax.data.frame import to_device, without_ground_truth
+    from gsjax.frame import to_device, without_ground_truth
     from gsjax.slam.optimizers import pose_optimizer
     from gsjax.slam.system import tracking_problem
     from gsjax.slam.tracking import tracking_objective

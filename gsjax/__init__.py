@@ -8,10 +8,23 @@ The names most users need, flat (the SLAM system is :mod:`gsjax.slam`)::
 """
 
 from gsjax.camera import Intrinsics, make_intrinsics
-from gsjax.data import DatasetError, DatasetWarning, Frame, Sequence, open_sequence
+from gsjax.frame import Frame
 from gsjax.gaussians import Gaussians
 from gsjax.raster import RasterSettings, render
 from gsjax.raster.cbknn import CBKNN
+
+# The readers' names load gsjax.data (every reader, OpenCV, the bag libraries) only when asked for, so importing the
+# core (gsjax.raster, gsjax.slam) loads no reader.
+_FROM_DATA = ("DatasetError", "DatasetWarning", "Sequence", "open_sequence")
+
+
+def __getattr__(name: str):
+    if name in _FROM_DATA:
+        import gsjax.data
+
+        return getattr(gsjax.data, name)
+    raise AttributeError(f"module 'gsjax' has no attribute {name!r}")
+
 
 __all__ = [
     "CBKNN",

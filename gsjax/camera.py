@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.config_fields import check_fields, required
+from gsjax.config.fields import check_fields, required
 
 # Below this squared rotation angle (rad^2) the closed forms lose float32 precision; use Taylor series instead.
 _SMALL_ANGLE_SQ = 0.04

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.checks import is_checkable
+from gsjax.config.fields import is_checkable
 
 if TYPE_CHECKING:
     from gsjax.camera import Intrinsics

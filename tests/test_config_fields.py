@@ -4,7 +4,6 @@ declaration is what JAX sees; validation, width scaling, old names and the gener
 from __future__ import annotations
 
 import dataclasses
-import warnings
 from pathlib import Path
 
 import jax
@@ -12,12 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsjax.config_fields import check_fields, field_docs, param, rescale, spec_of, walk
-from gsjax.config_text import apply_overrides, canonical_config_dict, config_from_dict, config_to_dict
-from gsjax.names import PRESETS
+from gsjax.config.fields import check_fields, field_docs, param, rescale, spec_of, walk
+from gsjax.config.names import PRESETS
+from gsjax.config.text import apply_overrides
 from gsjax.slam.config import CONFIG_CLASSES, SlamConfig
 from gsjax.slam.presets import PRESET_WIDTH, preset
-from gsjax.slam.tracking_config import RENAMED
 
 REFERENCE = Path(__file__).resolve().parents[1] / "docs" / "reference" / "config.md"
 
@@ -146,46 +144,6 @@ def test_every_field_in_px_follows_the_width_unless_it_is_a_shape():
 
     assert rescale(Probe(), 0.5) == Probe(margin=1.5)
     assert rescale(Probe(), 1) is not None and rescale(cpu, 1.0) is cpu
-
-
-def test_old_names_still_read_with_a_note_and_old_config_files_resume():
-    base = preset("cpu")
-    for old, new in RENAMED.items():
-        # The new name exists, the old one does not any more.
-        assert new in {e.path for e in walk(base)} and old not in {e.path for e in walk(base)}
-    with pytest.warns(FutureWarning, match="tracking.blur_px is now tracking.blur.sigma_px"):
-        config = apply_overrides(base, {"tracking.blur_px": "1.5", "tracking.blur.radius_px": "4"})
-    assert config.tracking.blur.sigma_px == 1.5 and config.tracking.blur.radius_px == 4
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # the new names give no note
-        assert apply_overrides(base, {"tracking.blur.sigma_px": "1.5", "tracking.blur.radius_px": "4"}) == config
-    # A config.json written before the split (every moved field flat under tracking) reads as the same config.
-    new = config_to_dict(config)
-    old = dict(new, tracking={k: v for k, v in new["tracking"].items() if not isinstance(v, dict)})
-    for name, section in new["tracking"].items():
-        if isinstance(section, dict):
-            for field, value in section.items():
-                flat = next(o for o, n in RENAMED.items() if n == f"tracking.{name}.{field}")
-                old["tracking"][flat.split(".")[1]] = value
-    assert "blur_px" in old["tracking"] and "guard" not in old["tracking"]
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # files read without a note
-        assert config_from_dict(old) == config
-        assert canonical_config_dict(old) == new
-
-
-def test_a_checkpoint_made_before_the_split_resumes(tmp_path):
-    from gsjax.app.runner import _check_resumable
-
-    new = config_to_dict(preset("cpu"))
-    tracking = {k: v for k, v in new["tracking"].items() if not isinstance(v, dict)}
-    tracking.update(max_step_m=0.5, max_step_deg=30.0, loss_jump=10.0, retry_lr_scale=0.5, converge_window=0,
-                    converge_rtol=1e-3, blur_radius_px=0, blur_px=0.0, coarse_iters=0, coarse_levels=2,
-                    coarse_sigma_px=1.0, match_exposure=False)
-    record = dict(frames=5, width=80, height=60, chunk=8, seed=0, camera=None, config=new)
-    _check_resumable(dict(record, config=dict(new, tracking=tracking)), record, tmp_path)
-    with pytest.raises(ValueError, match="different config"):
-        _check_resumable(dict(record, config=dict(new, tracking=dict(tracking, blur_px=1.0))), record, tmp_path)
 
 
 def test_the_docstrings_parse_into_one_meaning_per_field():

@@ -15,7 +15,7 @@ import pytest
 
 from gsjax.app.cli import build_parser
 from gsjax.app.cli.common import parse_overrides
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.slam.presets import preset
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,14 +1,17 @@
-"""The package's shape: no import cycle between gsjax's modules, the core never imports the shell, no module over
-400 lines of code (issue 38; docstrings aside, issue 40). Module-level imports only (a function may import lazily what
-it alone needs)."""
+"""The package's shape: no import cycle between gsjax's modules, the core imports neither the shell nor a reader, no
+module over 400 lines of code (issue 38; docstrings aside, issue 40), at most four modules at the top level (issue
+48). Module-level imports only (a function may import lazily what it alone needs)."""
 
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "gsjax"
-CORE = ("gsjax.raster", "gsjax.slam", "gsjax.camera", "gsjax.gaussians")
+CORE = ("gsjax.raster", "gsjax.slam", "gsjax.camera", "gsjax.gaussians", "gsjax.frame", "gsjax.config")
+SHELL_AND_READERS = ("gsjax.app", "gsjax.data", "gsjax.io", "gsjax.report", "gsjax.viewer")
 
 
 def modules() -> dict[str, Path]:
@@ -51,12 +54,27 @@ def test_no_module_level_import_cycle():
     assert len(graph) > 50  # the walk saw the package
 
 
-def test_the_core_never_imports_the_shell():
+def test_the_core_imports_neither_the_shell_nor_a_reader():
     known = modules()
     for name, path in known.items():
         if name.startswith(CORE):
-            shell = sorted(dep for dep in imports(path, known) if dep.startswith("gsjax.app"))
-            assert not shell, f"{name} imports {shell}"
+            outside = sorted(dep for dep in imports(path, known) if dep.startswith(SHELL_AND_READERS))
+            assert not outside, f"{name} imports {outside}"
+
+
+def test_importing_the_core_loads_no_reader():
+    """What ``import gsjax.slam`` loads, in a fresh process: no reader (``gsjax.data``, OpenCV, the bag libraries),
+    nothing of the shell."""
+    code = ("import sys, gsjax.slam, gsjax.raster; print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] "
+            "in ('cv2', 'rosbags', 'pyrealsense2', 'orbax', 'matplotlib') or m.startswith(('gsjax.data', "
+            "'gsjax.app', 'gsjax.io')))))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert not loaded, loaded
+
+
+def test_the_top_level_holds_at_most_four_modules():
+    top = sorted(p.stem for p in ROOT.glob("*.py") if p.stem not in ("__init__", "__main__"))
+    assert len(top) <= 4, top
 
 
 def code_lines(path: Path) -> int:

@@ -14,9 +14,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from gsjax import slam
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.data import open_sequence
-from gsjax.data.frame import to_device
+from gsjax.frame import to_device
 from gsjax.slam.landscape import basin_width, converged, directions, landscape
 from gsjax.slam.system import tracking_problem
 

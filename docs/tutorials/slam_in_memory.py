@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 
 from gsjax import slam
 from gsjax.camera import invert_transform
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.data import open_sequence
 from gsjax.eval import ate_rmse_c2w
 

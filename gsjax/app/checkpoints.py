@@ -4,10 +4,10 @@ is restored.
 Layout under ``<out>/checkpoints``:
 
 * ``<step>/`` (orbax, one per checkpoint, the newest ``keep`` kept): the state without the keyframe images
-  (the map, recent poses, keyframe poses and counters, RNG) and the run's :class:`RunLedger` as JSON (frames done,
-  capacity, the run's record, timings, warnings, the checkpoints so far). ``step`` is the number of frames done.
-  Orbax writes into a temporary directory and renames it when complete, so a step directory is either whole or
-  absent.
+  (the map, recent poses, keyframe poses and counters, RNG) and the run's :class:`RunLedger` as JSON (the run
+  folder's format, frames done, capacity, the run's record, timings, the checkpoints so far). ``step`` is the number
+  of frames done. Orbax writes into a temporary directory and renames it when complete, so a step directory is
+  either whole or absent. Checkpoints of another run folder format are refused (:class:`OlderRunError`).
 * ``frames/<a>-<b>.npz``: the per-frame outputs of frames a..b-1, written once by the checkpoint that reached b.
 * ``keyframes/<slot>.npz``: keyframe ``slot``'s colour and depth, written once by the checkpoint after it was
   stored.
@@ -33,14 +33,19 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from gsjax.app.run_dir import RunDirError
+from gsjax.eval.run_input import RUN_FORMAT, older_run_message
 from gsjax.eval.run_metrics import CheckpointSummary
 from gsjax.io.atomic import atomic_write_bytes, remove_stale_temporaries
-from gsjax.slam.state import KeyframeBuffer, SlamState, encode_color, encode_depth
+from gsjax.slam.state import KeyframeBuffer, SlamState
 from gsjax.slam.system import StepOutputs
 
 _IMAGES = ("color", "depth")  # the keyframe fields stored as files, one per slot
-# Checkpoints written before keyframes were stored compactly hold float32 images: encoded on restore.
-_ENCODE = {"color": lambda x: np.asarray(encode_color(x)), "depth": lambda x: np.asarray(encode_depth(x))}
+
+
+class OlderRunError(RunDirError):
+    """Checkpoints of another run folder format (:data:`gsjax.eval.run_input.RUN_FORMAT`): not resumed, not
+    fallen back past."""
 
 
 @dataclasses.dataclass
@@ -78,10 +83,10 @@ class RunLedger:
     Attributes:
       capacity: the map's capacity; record: what a resume must match (:meth:`gsjax.eval.run_input.RunInput.resume_key`).
       frames_done: frames processed; timings: seconds per stage so far; first_chunk_s: the first chunk's seconds.
-      warnings: unused (metrics.json words the warnings from the outputs, `gsjax.app.run_warnings`); kept so
-        older checkpoints read back. depth_units_checked: whether the depth unit check ran.
+      depth_units_checked: whether the depth unit check ran.
       checkpoints: the checkpoints so far; segments: [a, b) frame ranges of the per-frame output files;
       keyframes_saved: keyframe slots whose images are on disk.
+      format: the run folder's format (:data:`gsjax.eval.run_input.RUN_FORMAT`).
     """
 
     capacity: int
@@ -89,17 +94,20 @@ class RunLedger:
     frames_done: int = 0
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
     first_chunk_s: float | None = None
-    warnings: list[str] = dataclasses.field(default_factory=list)
     depth_units_checked: bool = False
     checkpoints: CheckpointLedger = dataclasses.field(default_factory=CheckpointLedger)
     segments: list[list[int]] = dataclasses.field(default_factory=list)
     keyframes_saved: int = 0
+    format: int = RUN_FORMAT
 
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
 
     @classmethod
     def from_json(cls, value: dict) -> RunLedger:
+        """The ledger a checkpoint holds; ValueError when it is of another run folder format."""
+        if value.get("format") != RUN_FORMAT:
+            raise ValueError(f"format {value.get('format')}")
         return cls(**dict(value, checkpoints=CheckpointLedger(**value["checkpoints"])))
 
 
@@ -183,7 +191,10 @@ class Checkpoints:
         return steps[0] if steps else None
 
     def read_ledger(self, step: int) -> RunLedger:
+        """Checkpoint ``step``'s ledger; :class:`OlderRunError` when it is of another run folder format."""
         meta = self._manager.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore())).meta
+        if meta.get("format") != RUN_FORMAT:
+            raise OlderRunError(f"--resume: {older_run_message(self.directory.parent, meta.get('format'))}")
         return RunLedger.from_json(meta)
 
     def outputs(self, step: int) -> StepOutputs:
@@ -218,7 +229,9 @@ class Checkpoints:
             try:
                 restored = self._restore(step, like)
                 break
-            except Exception as error:  # any failure to read a checkpoint means: use an older one
+            except OlderRunError:
+                raise
+            except Exception as error:  # any other failure to read a checkpoint means: use an older one
                 detail = (str(error).splitlines() or ["no detail"])[0][:160]
                 warn(f"checkpoint {self.directory / str(step)} cannot be read ({type(error).__name__}: {detail}); "
                      f"falling back to an older one (it is kept in {self.directory / 'unreadable'})")
@@ -249,7 +262,7 @@ class Checkpoints:
         for slot in range(count):
             stored = _load_npz(self.directory / "keyframes" / f"{slot:05d}.npz")
             for name in _IMAGES:
-                images[name][slot] = _ENCODE[name](stored[name]) if stored[name].dtype.kind == "f" else stored[name]
+                images[name][slot] = stored[name]
         keyframes = KeyframeBuffer(**tree.pop("keyframes"), **images)
         state = SlamState(**tree, keyframes=keyframes)
         state = jax.tree_util.tree_map(jnp.asarray, state)

@@ -1,6 +1,6 @@
 """The config reference: every field of :class:`gsjax.slam.config.SlamConfig` with its unit, static or traced, its
 bounds, its default in each preset and its meaning, as Markdown generated from the field declarations
-(:mod:`gsjax.config_fields`) and the classes' docstrings. ``gsjax config --reference FILE`` writes it
+(:mod:`gsjax.config.fields`) and the classes' docstrings. ``gsjax config --reference FILE`` writes it
 (``make config-reference`` into ``docs/reference/config.md``; a test keeps that file equal to this output)."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from gsjax.config_fields import FieldEntry, field_docs, kind_of, walk
-from gsjax.names import PRESETS
+from gsjax.config.fields import FieldEntry, field_docs, kind_of, walk
+from gsjax.config.names import PRESETS
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.presets import PRESET_WIDTH, preset
 

@@ -37,7 +37,7 @@ import numpy as np
 from gsjax.app.compilation_cache import exported_call
 from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.camera import invert_transform, se3_inverse, se3_log
-from gsjax.config_text import config_to_dict
+from gsjax.config.text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
 from gsjax.slam import landscape as pure

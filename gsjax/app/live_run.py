@@ -25,10 +25,11 @@ from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.run_outputs import run_record
 from gsjax.app.runner import RunOptions
 from gsjax.app.session import Group, Runtime, chunk_loop, one_config, start_capacity
-from gsjax.data.frame import DatasetError, Frame, host_frame
+from gsjax.data.errors import DatasetError
 from gsjax.data.images import downscale_color, downscale_depth
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
+from gsjax.frame import Frame, host_frame
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import initial_state, keyframe_capacity_for
 

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from gsjax.app.run_outputs import PER_FRAME
-from gsjax.config_fields import field_docs
+from gsjax.config.fields import field_docs
 from gsjax.eval.run_metrics import (
     CBKNNSummary,
     CheckpointSummary,

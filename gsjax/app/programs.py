@@ -44,7 +44,7 @@ def _register_serialization() -> None:
     from jax import export
 
     from gsjax.camera import Intrinsics
-    from gsjax.data.frame import Frame
+    from gsjax.frame import Frame
     from gsjax.gaussians import Gaussians
     from gsjax.slam.config import CONFIG_CLASSES
     from gsjax.slam.state import KeyframeBuffer, SlamState

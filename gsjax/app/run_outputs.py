@@ -17,7 +17,7 @@ import numpy as np
 
 from gsjax.app.run_warnings import run_warnings
 from gsjax.camera import invert_transform
-from gsjax.config_text import config_to_dict
+from gsjax.config.text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.eval.image import render_metrics_splatam
 from gsjax.eval.run_input import RunInput

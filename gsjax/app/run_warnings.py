@@ -11,8 +11,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from gsjax.data.frame import Frame
 from gsjax.data.sequence import Sequence
+from gsjax.frame import Frame
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.system import StepOutputs
 

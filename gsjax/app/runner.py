@@ -6,7 +6,7 @@ exactly where the run stopped; the outputs at the end), with a progress bar (fra
 so far when ground truth exists, frames/s).
 
 Ground truth is for evaluation only: the frames reach the SLAM core with their GT pose blanked
-(:func:`gsjax.data.frame.without_ground_truth`). What the run handles in a defined way but a user should know
+(:func:`gsjax.frame.without_ground_truth`). What the run handles in a defined way but a user should know
 (frames without usable depth, depth in an implausible unit, and what the reader reported) is printed as a warning
 and listed in ``metrics.json`` under ``warnings``.
 """
@@ -148,13 +148,14 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
             resume_warnings.append(message)
             print(f"warning: {message}", file=sys.stderr, flush=True)
 
-        restored = checkpoints.restore(like, fell_back)
-        if restored is not None:
-            try:
+        try:
+            restored = checkpoints.restore(like, fell_back)  # OlderRunError: a run folder of another format
+            if restored is not None:
                 _check_resumable(restored.ledger.record, ledger.record, out)
-            except ValueError:
-                checkpoints.close()
-                raise
+        except ValueError:
+            checkpoints.close()
+            raise
+        if restored is not None:
             state, restored_outputs, ledger = restored.state, restored.outputs, restored.ledger
             log.info("resumed from checkpoint at frame %d (capacity %d)", ledger.frames_done, ledger.capacity)
         elif resume_warnings:
@@ -204,9 +205,9 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
 
 
 def _check_resumable(saved: dict, key_now: dict, out: Path) -> None:
-    from gsjax.config_text import canonical_config_dict
+    from gsjax.config.text import canonical_config_dict
 
-    saved = {**saved, "config": canonical_config_dict(saved.get("config"))}  # written by an older gsjax, maybe
+    saved = {**saved, "config": canonical_config_dict(saved.get("config"))}  # JSON's lists as the fields' tuples
     for key, value in key_now.items():
         if saved.get(key) != value:
             raise ValueError(

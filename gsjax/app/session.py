@@ -23,7 +23,7 @@ import jax
 import numpy as np
 
 from gsjax.camera import Intrinsics
-from gsjax.data.frame import Frame
+from gsjax.frame import Frame
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import capacity_of, chunk_poses, doubled, dropped_in, pad_chunk, run_batch_chunk
 from gsjax.slam.state import SlamState

@@ -42,7 +42,7 @@ from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run, 
 from gsjax.app.session import Group, Runtime, chunk_loop, sequence_frames, start_capacity
 from gsjax.app.sweep_devices import batch_mesh, place_batch, share_results, to_host
 from gsjax.app.sweep_resume import finished_runs, prepare_rerun, run_folder
-from gsjax.config_text import apply_overrides, canonical_name
+from gsjax.config.text import apply_overrides
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.io.atomic import atomic_write_bytes, atomic_write_json, remove_stale_temporaries
@@ -64,15 +64,14 @@ class GridAxis:
 
 
 def parse_grid(text: str) -> GridAxis:
-    """``FIELD=V1,V2[,...]`` -> GridAxis (a field that moved under its new name, with a FutureWarning);
-    ValueError naming ``--grid`` on a malformed axis."""
+    """``FIELD=V1,V2[,...]`` -> GridAxis; ValueError naming ``--grid`` on a malformed axis."""
     field, sep, values = text.partition("=")
     items = tuple(v.strip() for v in values.split(",") if v.strip())
     if not sep or not field.strip() or not items:
         raise ValueError(f"--grid {text!r}: expected FIELD=V1,V2,... (e.g. cbknn.params.alpha=0.1,0.2)")
     if len(set(items)) != len(items):
         raise ValueError(f"--grid {text!r}: a value is repeated")
-    return GridAxis(canonical_name(field.strip()), items)
+    return GridAxis(field.strip(), items)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -11,11 +11,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from gsjax.app.run_dir import RunDirError
-from gsjax.config_text import canonical_config_dict
-from gsjax.eval.run_input import RunInput, read_run_input
+from gsjax.config.text import canonical_config_dict
+from gsjax.eval.run_input import RUN_FORMAT, RunInput, older_run_message, read_run_input
 from gsjax.eval.run_metrics import RunMetrics, read_run_metrics
 from gsjax.io.atomic import remove_stale_temporaries
-from gsjax.slam.tracking_config import RENAMED
 
 
 def run_folder(out: Path, index: int) -> Path:
@@ -46,6 +45,8 @@ def finished_runs(out: Path, expected: dict[int, RunInput]) -> dict[int, RunMetr
             metrics = read_run_metrics(folder / "metrics.json")
         except ValueError as error:
             raise RunDirError(f"--resume: {error}") from None
+        if saved.format != RUN_FORMAT:
+            raise RunDirError(f"--resume: {older_run_message(folder, saved.format)}")
         want = expected[index]
         if _comparable(saved) != _comparable(want):
             raise RunDirError(f"--resume: {folder} was made with a different config, size, chunk or seed than this "
@@ -55,11 +56,9 @@ def finished_runs(out: Path, expected: dict[int, RunInput]) -> dict[int, RunMetr
 
 
 def _comparable(record: RunInput) -> tuple[dict, dict]:
-    """What a finished run must match, as this version writes it (a run made before a field moved compares by the
-    field's new name)."""
+    """What a finished run must match, as this version writes it."""
     key = dict(record.resume_key(), config=canonical_config_dict(record.config))
-    values = {RENAMED.get(name, name): value for name, value in ((record.sweep or {}).get("values") or {}).items()}
-    return key, values
+    return key, (record.sweep or {}).get("values") or {}
 
 
 def prepare_rerun(out: Path, index: int) -> None:

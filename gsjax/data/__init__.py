@@ -17,8 +17,9 @@ import dataclasses
 import math
 from pathlib import Path
 
+from gsjax.config.names import BAGS, SYNTHETIC
 from gsjax.data.bag_write import write_rosbag
-from gsjax.data.frame import DatasetError, DatasetWarning, Frame, stack_frames
+from gsjax.data.errors import DatasetError, DatasetWarning
 from gsjax.data.listing import GivenIntrinsics, sequence_from_files
 from gsjax.data.replica import list_replica
 from gsjax.data.rosbag import BagOptions, open_rosbag
@@ -27,9 +28,9 @@ from gsjax.data.sequence import Sequence
 from gsjax.data.sevenscenes import list_sevenscenes
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.data.tum import list_tum, write_tum
-from gsjax.names import BAGS, SYNTHETIC
+from gsjax.frame import Frame, stack_frames
 
-# One reader per name of gsjax.names.DATASETS (tests check the two agree).
+# One reader per name of gsjax.config.names.DATASETS (tests check the two agree).
 READERS = {"tum": list_tum, "replica": list_replica, "scannet": list_scannet, "7scenes": list_sevenscenes}
 SYNTHETIC_FRAMES = 30  # frames of the synthetic sequence unless max_frames says otherwise
 

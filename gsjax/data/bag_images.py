@@ -16,7 +16,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from gsjax.data.frame import DatasetError
+from gsjax.data.errors import DatasetError
 
 COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8")
 DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")

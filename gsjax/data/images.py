@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from gsjax.camera import Intrinsics
-from gsjax.data.frame import DatasetError
+from gsjax.data.errors import DatasetError
 from gsjax.data.registration import ColorCamera, register_color
 
 

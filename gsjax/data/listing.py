@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from gsjax.camera import Intrinsics, make_intrinsics
-from gsjax.data.frame import DatasetError
+from gsjax.data.errors import DatasetError
 from gsjax.data.images import image_size, load_rgbd
 from gsjax.data.poses import read_pose_files
 from gsjax.data.registration import ColorCamera

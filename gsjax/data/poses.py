@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import rigidity_error
-from gsjax.data.frame import DatasetError, DatasetWarning
+from gsjax.data.errors import DatasetError, DatasetWarning
 
 # Largest tolerated |R^T R - I|, |det R - 1| or deviation of the last row from (0, 0, 0, 1). Real GT is far
 # inside (7-Scenes' KinectFusion poses: 1.5e-4; ScanNet and Replica: ~1e-7); scaled or sheared matrices are far out.

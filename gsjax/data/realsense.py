@@ -22,7 +22,7 @@ import numpy as np
 
 from gsjax.camera import Intrinsics, invert_transform, make_intrinsics, quaternion_wxyz_to_rotation
 from gsjax.data.bag_images import camera_from_info
-from gsjax.data.frame import DatasetError
+from gsjax.data.errors import DatasetError
 from gsjax.data.listing import GivenIntrinsics
 from gsjax.data.rosbag import BagFile, BagOptions, paired_sequence
 from gsjax.data.sequence import Sequence

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.camera import make_intrinsics
-from gsjax.data.frame import DatasetError
+from gsjax.data.errors import DatasetError
 from gsjax.data.listing import (
     FrameFiles,
     GivenIntrinsics,

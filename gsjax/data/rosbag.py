@@ -39,7 +39,7 @@ from gsjax.data.bag_images import (
     is_depth_image,
     stamp_ns,
 )
-from gsjax.data.frame import DatasetError, DatasetWarning
+from gsjax.data.errors import DatasetError, DatasetWarning
 from gsjax.data.images import downscale_color, downscale_depth
 from gsjax.data.listing import GivenIntrinsics, select_indices
 from gsjax.data.sequence import Sequence

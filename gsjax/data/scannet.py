@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from gsjax.camera import Intrinsics
-from gsjax.data.frame import DatasetError
+from gsjax.data.errors import DatasetError
 from gsjax.data.images import image_size
 from gsjax.data.listing import (
     FrameFiles,

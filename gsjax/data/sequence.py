@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.camera import Intrinsics
-from gsjax.data.frame import DatasetError, Frame, host_frame, stack_frames, to_device
+from gsjax.data.errors import DatasetError
+from gsjax.frame import Frame, host_frame, stack_frames, to_device
 
 # (i) -> (colour [H, W, 3] float32 in [0, 1], depth [H, W] float32 m) for position i of the sequence.
 ReadRGBD = Callable[[int], tuple[np.ndarray, np.ndarray]]

@@ -25,7 +25,7 @@ import dataclasses
 import numpy as np
 
 from gsjax.camera import Intrinsics, make_intrinsics
-from gsjax.config_fields import check_fields, param
+from gsjax.config.fields import check_fields, param
 from gsjax.data import scene
 from gsjax.data.sequence import Sequence
 

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.camera import Intrinsics, make_intrinsics, quaternion_wxyz_to_rotation
-from gsjax.data.frame import DatasetError, DatasetWarning
+from gsjax.data.errors import DatasetError, DatasetWarning
 from gsjax.data.images import image_size
 from gsjax.data.listing import FrameFiles, GivenIntrinsics, given_intrinsics, read_json_numbers
 from gsjax.data.poses import data_lines, parse_numbers, warn_bad_poses

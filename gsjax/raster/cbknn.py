@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 
 from gsjax.camera import camera_center, rotation_angle
-from gsjax.config_fields import check_fields, param
+from gsjax.config.fields import check_fields, param
 from gsjax.raster.composite import Slots, slot_alpha
 from gsjax.raster.project import Projected
 

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import Intrinsics, rigidity_error
-from gsjax.checks import is_checkable
+from gsjax.config.fields import is_checkable
 from gsjax.gaussians import Gaussians, check_gaussians
 from gsjax.raster import cbknn as cb
 from gsjax.raster.binning import TileGrid, bin_gaussians

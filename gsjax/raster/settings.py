@@ -8,7 +8,7 @@ import math
 
 import jax
 
-from gsjax.config_fields import check_fields, param
+from gsjax.config.fields import check_fields, param
 from gsjax.raster import pallas
 from gsjax.raster.binning import TileGrid
 from gsjax.raster.project import DILATION

@@ -5,7 +5,7 @@ counts, CB-KNN's mode and where it acts) are *traced* leaves, so ``jax.vmap`` ov
 compiled program; an iteration count runs within a static cap (``SlamConfig.caps``, :mod:`gsjax.slam.loops`). Shapes
 (window size, contributor slots, tiles, a filter's radius), the optimizer and a few flags are *static*. The named
 presets are in :mod:`gsjax.slam.presets`; overrides by dotted field name and the JSON round trip in
-:mod:`gsjax.config_text`.
+:mod:`gsjax.config.text`.
 """
 
 from __future__ import annotations
@@ -16,9 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.checks import is_checkable
-from gsjax.config_fields import check_fields, choice_is, derived, param, register_config
-from gsjax.names import CBKNN_MODES
+from gsjax.config.fields import check_fields, choice_is, derived, is_checkable, param, register_config
+from gsjax.config.names import CBKNN_MODES
 from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
 from gsjax.slam.loops import LoopCaps

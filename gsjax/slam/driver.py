@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import Intrinsics
-from gsjax.data.frame import Frame, stack_frames, to_device, without_ground_truth
+from gsjax.frame import Frame, stack_frames, to_device, without_ground_truth
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import SlamState, grow_capacity, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs, run_chunk, unknown_poses

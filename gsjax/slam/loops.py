@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.checks import is_checkable
+from gsjax.config.fields import is_checkable
 
 _Carry = TypeVar("_Carry")
 

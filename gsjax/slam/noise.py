@@ -12,7 +12,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from gsjax.data.frame import Frame
+from gsjax.frame import Frame
 from gsjax.gaussians import Gaussians
 from gsjax.slam.config import NoiseConfig
 

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from gsjax.config_fields import rescale
-from gsjax.names import PRESETS
+from gsjax.config.fields import rescale
+from gsjax.config.names import PRESETS
 from gsjax.raster import RasterSettings
 from gsjax.raster.cbknn import CBKNN
 from gsjax.slam.config import CBKNNConfig, CoarseToFine, ImageBlur, MappingConfig, SlamConfig, TrackingConfig
@@ -33,7 +33,7 @@ def working_downscale(name: str, width: int) -> int:
     """The integer reduction ``gsjax run`` applies to input ``width`` px wide under preset ``name`` (1 = native).
 
     Args:
-      name: the preset's name (:data:`gsjax.names.PRESETS`).
+      name: the preset's name (:data:`gsjax.config.names.PRESETS`).
       width: the input images' width (px).
 
     Returns:
@@ -57,7 +57,7 @@ def at_width(config: SlamConfig, width: int, preset_width: int) -> SlamConfig:
     Every traced field in px (``mapping.overlap_margin``, ``tracking.blur.sigma_px``, ``tracking.coarse.sigma_px``,
     ``cbknn.params.alpha`` when its shift mode makes it px) is scaled by ``width / preset_width``, and
     ``mapping.prune_scale_ratio`` by the pixel footprint (``preset_width / width``). Which fields those are is
-    declared with each field (:class:`gsjax.config_fields.FieldSpec`); static ones in px (``tracking.blur.radius_px``,
+    declared with each field (:class:`gsjax.config.fields.FieldSpec`); static ones in px (``tracking.blur.radius_px``,
     tile and cell sizes) are shapes and stay.
 
     Args:

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from gsjax.camera import Intrinsics, constant_velocity, orthonormalize
-from gsjax.data.frame import Frame
+from gsjax.frame import Frame
 from gsjax.raster.cbknn import CBKNN, motion_from_poses
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.densify import densify

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import optax
 
 from gsjax.camera import Intrinsics, camera_center, perturb_left, rotation_angle
-from gsjax.config_fields import choice_is
+from gsjax.config.fields import choice_is
 from gsjax.gaussians import Gaussians
 from gsjax.raster import select_slots
 from gsjax.slam.config import BEST_POSE, CoarseToFine, SlamConfig, TrackingConfig

@@ -1,7 +1,7 @@
 """Tracking's configuration: SplaTAM's core (:class:`TrackingConfig`) and its nested parts, one per concern: the
 divergence guard (``tracking.guard``), stopping early (``tracking.stop``), and the research alternatives to the
 plain per-pixel loss (``tracking.blur``, ``tracking.coarse``, ``tracking.exposure``). Units, static/traced and
-bounds are declared per field (:func:`gsjax.config_fields.param`)."""
+bounds are declared per field (:func:`gsjax.config.fields.param`)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,7 @@ import dataclasses
 import jax
 import numpy as np
 
-from gsjax.checks import is_checkable
-from gsjax.config_fields import check_fields, param, register_config
+from gsjax.config.fields import check_fields, is_checkable, param, register_config
 
 TRACKING_OPTIMIZERS = ("adam", "lm")
 BEST_POSE = ("pre_step", "post_step")
@@ -189,21 +188,3 @@ class TrackingConfig:
             raise ValueError("tracking.coarse.iters needs tracking.blur.radius_px > 0 (the coarse levels' filter)")
         if coarse and self.optimizer != "adam":
             raise ValueError("tracking.coarse.iters runs with tracking.optimizer adam only")
-
-
-# Names that moved into the nested parts (old dotted name -> new); configs, overrides and config.json files that use
-# the old ones still read, with a deprecation note (gsjax.config_text).
-RENAMED = {
-    "tracking.max_step_m": "tracking.guard.max_step_m",
-    "tracking.max_step_deg": "tracking.guard.max_step_deg",
-    "tracking.loss_jump": "tracking.guard.loss_jump",
-    "tracking.retry_lr_scale": "tracking.guard.retry_lr_scale",
-    "tracking.converge_window": "tracking.stop.window",
-    "tracking.converge_rtol": "tracking.stop.rtol",
-    "tracking.blur_radius_px": "tracking.blur.radius_px",
-    "tracking.blur_px": "tracking.blur.sigma_px",
-    "tracking.coarse_iters": "tracking.coarse.iters",
-    "tracking.coarse_levels": "tracking.coarse.levels",
-    "tracking.coarse_sigma_px": "tracking.coarse.sigma_px",
-    "tracking.match_exposure": "tracking.exposure.match",
-}

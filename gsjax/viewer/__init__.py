@@ -39,7 +39,7 @@ def open_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080) -> 
     Raises :class:`gsjax.report.RunRecordError` (a ValueError) naming the directory or file that cannot be used.
     """
     from gsjax.camera import make_intrinsics
-    from gsjax.config_text import config_from_dict
+    from gsjax.config.text import config_from_dict
     from gsjax.io.ply import read_ply
     from gsjax.raster import RasterSettings
     from gsjax.report.run_record import RunRecordError, read_run

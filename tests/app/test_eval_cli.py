@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from gsjax.app.cli import main
+from gsjax.config.names import DATASETS
 from gsjax.data import READERS
 from gsjax.eval.trajectory import evaluate_trajectory
 from gsjax.io.trajectory import read_tum_trajectory, write_tum_trajectory
-from gsjax.names import DATASETS
 from tests.support.recordings import (
     shared_data,
     tiny_scene,
@@ -81,7 +81,7 @@ def test_eval_with_a_missing_file_is_a_user_error(tmp_path, capsys):
 
 
 def test_eval_dataset_choices_are_the_readers():
-    assert tuple(READERS) == DATASETS  # one list of names (gsjax.names), in one order
+    assert tuple(READERS) == DATASETS  # one list of names (gsjax.config.names), in one order
 
 
 WRITERS = {"tum": write_tum_by_hand, "replica": write_replica, "scannet": write_scannet, "7scenes": write_sevenscenes}

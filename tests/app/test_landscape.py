@@ -14,9 +14,9 @@ import pytest
 
 from gsjax.app.cli import main
 from gsjax.app.compilation_cache import exported_call
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.data import open_sequence, write_tum
-from gsjax.data.frame import stack_frames, to_device
+from gsjax.frame import stack_frames, to_device
 from gsjax.slam import landscape as pure
 from gsjax.slam.driver import run as slam_run
 from gsjax.slam.losses import rendered_depth, tracking_mask

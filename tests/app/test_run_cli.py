@@ -10,7 +10,7 @@ import pytest
 
 from gsjax.app.checkpoints import Checkpoints
 from gsjax.app.cli import main
-from gsjax.config_text import config_to_dict
+from gsjax.config.text import config_to_dict
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
 from tests.support.tiny_slam import FRAMES, HEIGHT, TINY_OVERRIDES, TINY_RUN, WIDTH, tiny_config, tiny_sequence

@@ -15,7 +15,7 @@ from gsjax.app.checkpoints import Checkpoints
 from gsjax.app.recorder import compile_estimate
 from gsjax.app.run_dir import holder
 from gsjax.app.runner import run_slam
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.eval.run_metrics import read_run_metrics
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
@@ -146,6 +146,24 @@ def test_a_refused_resume_leaves_the_run_directory_unchanged(tmp_path, interrupt
     with pytest.raises(ValueError):
         run_slam(tiny_sequence(), tiny_config(), run_options(out, resume=True, seed=1))
     assert json.loads((out / "config.json").read_bytes()) == json.loads(before)
+
+
+def test_a_run_folder_of_another_format_is_refused_saying_what_to_do_and_left_unchanged(tmp_path, interrupted):
+    """Checkpoints whose ledger holds another run folder format (gsjax before issue 48 wrote none) are not resumed and
+    not fallen back past: the resume stops, naming the folder and --overwrite, and changes nothing."""
+    out = copy_of(interrupted, tmp_path)
+    ledgers = [path for path in (out / "checkpoints").rglob("*") if path.is_file() and b'"frames_done"' in
+               path.read_bytes()]
+    assert ledgers
+    for path in ledgers:
+        value = json.loads(path.read_text())
+        del value["format"]
+        path.write_text(json.dumps(value))
+    before = {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file() and p.name != ".gsjax.lock"}
+    with pytest.raises(ValueError, match=r"--resume: .* was written by another gsjax \(run folder format 1; this gsjax "
+                                         r"writes and resumes format 2\): run it again with --overwrite"):
+        run_slam(tiny_sequence(), tiny_config(), run_options(out, resume=True))
+    assert {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file() and p.name != ".gsjax.lock"} == before
 
 
 def test_frames_per_second_after_a_resume_covers_the_whole_run(tmp_path, interrupted):

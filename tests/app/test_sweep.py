@@ -26,7 +26,7 @@ from gsjax.app.sweep import (
     static_fields,
     vmap_width,
 )
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.io.trajectory import read_tum_trajectory
 from tests.support.tiny_slam import TINY_RUN, tiny_config
 

@@ -82,3 +82,18 @@ def test_a_resume_with_another_grid_is_refused_naming_the_run(tmp_path, uninterr
     assert main(["sweep", *TINY_RUN, "--grid", "tracking.lr_trans=0.002", "--out", str(out), "--resume"]) == 2
     assert "runs/001 is a finished run outside this sweep's 1 configs" in capsys.readouterr().err
     assert files(out) == before
+
+
+def test_a_finished_run_of_another_format_is_refused_saying_what_to_do(tmp_path, uninterrupted, capsys):
+    import json
+    import shutil
+
+    out = tmp_path / "sweep"
+    shutil.copytree(uninterrupted, out)
+    config = out / "runs" / "001" / "config.json"
+    config.write_text(json.dumps({k: v for k, v in json.loads(config.read_text()).items() if k != "format"}))
+    before = files(out)
+    assert main([*SWEEP, "--out", str(out), "--resume"]) == 2
+    assert "runs/001 was written by another gsjax (run folder format 1; this gsjax writes and resumes format 2): " \
+           "run it again with --overwrite, or into a new --out" in capsys.readouterr().err
+    assert files(out) == before

@@ -6,10 +6,10 @@ import json
 
 import pytest
 
-from gsjax.eval.run_input import RESUME_KEYS, RunInput, read_run_input
+from gsjax.eval.run_input import RESUME_KEYS, RUN_FORMAT, RunInput, read_run_input
 
 CAMERA = dict(fx=30.0, fy=30.0, cx=19.5, cy=14.5, width=40, height=30, depth_scale=5000.0)
-FILE = dict(dataset="tum", path="/data/room", preset="cpu", cbknn="off", overrides={"tracking.iters": "3"},
+FILE = dict(format=2, dataset="tum", path="/data/room", preset="cpu", cbknn="off", overrides={"tracking.iters": "3"},
             sequence="room", frames=6, width=40, height=30, chunk=3, seed=0, camera=CAMERA,
             config={"keyframe_every": 5}, sweep=dict(values={"tracking.lr_trans": "0.003"}, batch=0, batch_size=1))
 
@@ -26,10 +26,11 @@ def test_a_config_json_reads_back_and_writes_the_same_object_in_the_same_order()
 
 
 def test_an_older_file_reads_back_with_none_and_resume_compares_size_chunk_seed_camera_and_config(tmp_path):
-    older = {k: v for k, v in FILE.items() if k not in ("camera", "sweep")}
+    older = {k: v for k, v in FILE.items() if k not in ("format", "camera", "sweep")}
     (tmp_path / "config.json").write_text(json.dumps(older))
     record = read_run_input(tmp_path / "config.json")
-    assert record.camera is None and record.sweep is None
+    assert record.camera is None and record.sweep is None and record.format is None
+    assert RunInput.from_json(FILE).format == RUN_FORMAT == 2
     assert list(record.resume_key()) == list(RESUME_KEYS) and record.resume_key()["camera"] is None
     assert RunInput.from_json(FILE).resume_key() == {k: FILE[k] for k in RESUME_KEYS}
 

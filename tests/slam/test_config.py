@@ -8,8 +8,8 @@ import json
 import jax
 import pytest
 
-from gsjax.config_text import apply_overrides, config_from_dict, config_to_dict
-from gsjax.names import PRESETS
+from gsjax.config.names import PRESETS
+from gsjax.config.text import apply_overrides, config_from_dict, config_to_dict
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.presets import preset, with_cbknn_mode
 

@@ -11,8 +11,8 @@ import pytest
 
 from gsjax import slam
 from gsjax.app.compilation_cache import exported_call
-from gsjax.config_text import apply_overrides
-from gsjax.data.frame import Frame, stack_frames
+from gsjax.config.text import apply_overrides
+from gsjax.frame import Frame, stack_frames
 from gsjax.gaussians import Gaussians
 from gsjax.slam.config import NoiseConfig
 from gsjax.slam.noise import add_depth_noise, perturb_map, perturb_stored_map

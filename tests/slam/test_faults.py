@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import constant_velocity, orthonormalize, se3_exp
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.slam.tracking import TrackingProblem, track, track_guarded, within_step_bound
 from tests.support.tiny_slam import (
     CHUNK,

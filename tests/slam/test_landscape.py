@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gsjax.camera import invert_rigid, rotation_angle_rad
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.slam import landscape as pure
 from gsjax.slam.tracking import TrackingProblem
 from tests.support.tiny_slam import first_frame_map, map_config, relative_gt_w2c, tiny_sequence

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsjax.config_text import apply_overrides, config_from_dict, config_to_dict
+from gsjax.config.text import apply_overrides, config_from_dict, config_to_dict
 from gsjax.slam.loops import LoopCaps, cap_for, common_caps, counted_scan
 from gsjax.slam.presets import preset, with_cbknn_mode
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gsjax.camera import se3_inverse
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.gaussians import Gaussians, gaussians_from_rgbd
 from gsjax.slam.densify import densify, insert, prune
 from gsjax.slam.losses import mapping_loss

@@ -9,7 +9,7 @@ import numpy as np
 import optax
 import pytest
 
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.slam.optimizers import finite_only_if_loss_is, map_optimizer, nonfinite_steps, pose_optimizer
 from gsjax.slam.presets import preset
 

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from gsjax.camera import constant_velocity, orthonormalize
-from gsjax.config_text import apply_overrides
-from gsjax.data.frame import without_ground_truth
+from gsjax.config.text import apply_overrides
+from gsjax.frame import without_ground_truth
 from gsjax.slam import system
 from tests.support.tiny_slam import (
     CHUNK,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from gsjax.camera import se3_exp, se3_log
-from gsjax.config_text import apply_overrides
+from gsjax.config.text import apply_overrides
 from gsjax.raster import render
 from gsjax.raster.render import empty_selection
 from gsjax.slam.config import EarlyStop

@@ -16,10 +16,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.app.runner import RunOptions
-from gsjax.config_text import apply_overrides
-from gsjax.data.frame import Frame, stack_frames, to_device
+from gsjax.config.text import apply_overrides
 from gsjax.data.sequence import Sequence
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
+from gsjax.frame import Frame, stack_frames, to_device
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.loops import LoopCaps
 from gsjax.slam.presets import preset, with_cbknn_mode

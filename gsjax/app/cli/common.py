@@ -9,7 +9,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from gsjax.names import BAGS, CBKNN_MODES, DATASETS, PRESETS, SYNTHETIC
+from gsjax.config.names import BAGS, CBKNN_MODES, DATASETS, PRESETS, SYNTHETIC
 
 
 class UserError(Exception):
@@ -48,7 +48,7 @@ _PYTHON_SHOWWARNING = warnings.showwarning
 
 
 def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """``warnings.showwarning`` for the command line: a FutureWarning (an old config name, ...) as one ``warning:``
+    """``warnings.showwarning`` for the command line: a FutureWarning (a deprecation, ...) as one ``warning:``
     line, the rest as Python shows them."""
     if issubclass(category, FutureWarning):
         print(f"warning: {message}", file=sys.stderr, flush=True)
@@ -241,7 +241,7 @@ def open_run_sequence(args):
 
 def configure(args, width: int | None = None):
     """The preset at the working ``width`` with the CB-KNN mode, then the command line's overrides as given."""
-    from gsjax.config_text import apply_overrides
+    from gsjax.config.text import apply_overrides
     from gsjax.slam.presets import preset, with_cbknn_mode
 
     return apply_overrides(with_cbknn_mode(preset(args.preset, width), args.cbknn), args.overrides)

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from gsjax.app.cli import common
-from gsjax.names import CBKNN_MODES, PRESETS
+from gsjax.config.names import CBKNN_MODES, PRESETS
 
 
 def add(sub) -> None:
@@ -40,7 +40,7 @@ def run(args) -> int:
             atomic_write_text(args.reference, text)
             print(f"wrote the config reference to {args.reference}")
         return 0
-    from gsjax.config_text import config_to_dict
+    from gsjax.config.text import config_to_dict
 
     print(json.dumps(config_to_dict(common.configure(args, args.width)), indent=2))
     return 0

@@ -6,7 +6,7 @@ import dataclasses
 from pathlib import Path
 
 from gsjax.app.cli import common
-from gsjax.names import BAGS, DATASETS
+from gsjax.config.names import BAGS, DATASETS
 
 
 def add(sub) -> None:

@@ -15,19 +15,13 @@ import jax.numpy as jnp
 import numpy as np
 
 
-class DatasetError(ValueError):
-    """A dataset on disk is missing, malformed or inconsistent; the message names the file and the problem."""
-
-
-class DatasetWarning(UserWarning):
-    """Something in a dataset that gsjax handles in a defined way (a sorted list, a frame left out of the
-    evaluation, ...) but the user should know about; the message names the file (and frame) and what was done."""
-
-
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Frame:
     """One RGB-D frame (or, stacked, a chunk of T frames with a leading axis on every field).
+
+    Numpy arrays on the host (as the readers build it, :func:`host_frame`), jax arrays on the device
+    (:func:`to_device`).
 
     Attributes:
       color: [H, W, 3] float32 RGB in [0, 1].
@@ -46,7 +40,8 @@ class Frame:
     @property
     def shape(self) -> tuple[int, int]:
         """(H, W) of the images."""
-        return tuple(self.depth.shape[-2:])
+        height, width = self.depth.shape[-2:]
+        return height, width
 
 
 def host_frame(color: np.ndarray, depth: np.ndarray, c2w: np.ndarray, pose_valid: bool, index: int) -> Frame:

@@ -1,40 +1,23 @@
 """Configs as text: overrides by dotted field name (``--tracking.iters 60``) and the JSON round trip of
 ``config.json`` / ``metrics.json``. No config is ever executed as code: values are parsed as the field's declared
-type and validated by the config classes (:mod:`gsjax.config_fields`).
-
-Fields that moved (:data:`gsjax.slam.tracking_config.RENAMED`) still read under their old dotted names: an override
-or a sweep axis with a FutureWarning naming the new one, a ``config.json`` written before the move silently.
+type and validated by the config classes (:mod:`gsjax.config.fields`).
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import typing
-import warnings
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from gsjax.config_fields import kind_of, settings_fields, spec_of
+from gsjax.config.fields import kind_of, settings_fields, spec_of
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.tracking_config import RENAMED
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
 _Config = TypeVar("_Config", bound="DataclassInstance")
-
-
-def canonical_name(path: str) -> str:
-    """The current dotted name of the config field ``path``: ``path`` itself, or where it moved (with a
-    FutureWarning naming both)."""
-    new = RENAMED.get(path)
-    if new is None:
-        return path
-    warnings.warn(f"config field {path} is now {new}; the old name still reads, for now", FutureWarning,
-                  stacklevel=3)
-    return new
 
 
 def _convert(text: str, kind: str, path: str):
@@ -60,13 +43,11 @@ def _convert(text: str, kind: str, path: str):
 
 
 def apply_overrides(config: _Config, overrides: dict[str, str]) -> _Config:
-    """A copy of ``config`` with dotted field names set from strings, e.g. ``{"tracking.iters": "60"}``; a name
-    that moved reads with a FutureWarning (:func:`canonical_name`).
+    """A copy of ``config`` with dotted field names set from strings, e.g. ``{"tracking.iters": "60"}``.
 
     Raises ValueError naming the field for unknown names and unreadable or invalid values.
     """
     for path, text in overrides.items():
-        path = canonical_name(path)
         config = _set_path(config, path.split("."), text, path)
     return config
 
@@ -115,51 +96,13 @@ def config_from_dict(data: dict[str, Any], base: _Config) -> _Config: ...
 
 
 def config_from_dict(data: dict[str, Any], base: DataclassInstance | None = None) -> DataclassInstance:
-    """Inverse of :func:`config_to_dict` (unknown keys are errors). A whole config's dict written before a field
-    moved reads with the field in its new place."""
-    if base is None or isinstance(base, SlamConfig):
-        data = migrate_config_dict(data)
+    """Inverse of :func:`config_to_dict` (unknown keys are errors)."""
     return _from_dict(data, SlamConfig() if base is None else base)
 
 
-def migrate_config_dict(data: dict[str, Any]) -> dict[str, Any]:
-    """A whole config's nested dict with the fields that moved (:data:`~gsjax.slam.tracking_config.RENAMED`) in
-    their new places; ``data`` itself when none is there."""
-    moved = [(old, new) for old, new in RENAMED.items() if _lookup(data, old) is not _MISSING]
-    if not moved:
-        return data
-    data = copy.deepcopy(data)
-    for old, new in moved:
-        *parents, name = old.split(".")
-        value = _node(data, parents).pop(name)
-        *parents, name = new.split(".")
-        node = data
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[name] = value
-    return data
-
-
-_MISSING = object()
-
-
-def _lookup(data: Any, path: str) -> Any:
-    for part in path.split("."):
-        if not isinstance(data, dict) or part not in data:
-            return _MISSING
-        data = data[part]
-    return data
-
-
-def _node(data: dict, parts: list[str]) -> dict:
-    for part in parts:
-        data = data[part]
-    return data
-
-
 def canonical_config_dict(data: dict[str, Any] | None) -> dict[str, Any] | None:
-    """``data`` as this version writes the same config (old names moved, every field present), for comparing
-    records across versions (resume); None stays None."""
+    """``data`` as :func:`config_to_dict` writes the same config (every field present, JSON's lists read as the
+    fields' tuples), for comparing records (resume); None stays None."""
     return None if data is None else config_to_dict(config_from_dict(data))
 
 

@@ -18,9 +18,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.checks import is_checkable
-
 _T = TypeVar("_T")
+
+
+def is_checkable(value: Any) -> bool:
+    """Whether ``value`` (a number, an array or a pytree of them) can be checked now: every leaf a concrete number
+    or array, none a tracer (under jit/vmap/grad), and at least one leaf (not a placeholder JAX puts in a pytree,
+    such as ``None`` in a vmap ``in_axes`` tree), and no array sharded over other processes (checked where built)."""
+    leaves = jax.tree_util.tree_leaves(value)
+    return bool(leaves) and all(
+        isinstance(leaf, (int, float, np.ndarray, np.generic, jax.Array)) and not isinstance(leaf, jax.core.Tracer)
+        and (not isinstance(leaf, jax.Array) or leaf.is_fully_addressable)
+        for leaf in leaves
+    )
 
 # How a field follows the image width (gsjax.slam.presets.at_width): "width" scales with it (a length in pixels),
 # "footprint" inversely (a bound measured in pixel footprints, e.g. pruning's size bound), None stays.
