@@ -115,7 +115,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
     args = parser.parse_args(argv)
     sys.path.insert(0, str(ROOT))
-    from gsjax.app.compilation_cache import enable_compilation_cache
+    from gsjax.app.runtime.cache import enable_compilation_cache
 
     enable_compilation_cache()
     args.work.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,7 @@ import time
 
 import jax
 
-from gsjax.app.compilation_cache import enable_compilation_cache
+from gsjax.app.runtime.cache import enable_compilation_cache
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.slam.driver import pad_chunk, run_batch_chunk, stack_trees
 from gsjax.slam.presets import preset, with_cbknn_mode

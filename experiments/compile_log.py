@@ -1,9 +1,9 @@
 """The suite's compilations as a table: distinct programs by kind, and where the compile time goes.
 
 ``GSJAX_COMPILE_LOG=DIR`` makes every process of a test run (the pytest workers and the ``gsjax`` commands they
-start) append a line per compiled program to ``DIR/<pid>.tsv`` (:mod:`gsjax.app.compile_log`): the test or command, the
-program's name, its trace, lowering and XLA compile seconds, and whether XLA's part was a persistent-cache hit.
-
+start) append a line per compiled program to ``DIR/<pid>.tsv`` (:mod:`gsjax.app.runtime.compile_log`): the test or
+command, the program's name, its trace, lowering and XLA compile seconds, and whether XLA's part was a persistent-cache
+hit. 
     GSJAX_CACHE_DIR=$(mktemp -d) GSJAX_COMPILE_LOG=/tmp/clog make test
     python experiments/compile_log.py /tmp/clog [--top 20] [--tests-only]
 

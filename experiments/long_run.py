@@ -33,10 +33,10 @@ def long_run(frames: int, work: Path, downscale: int = 4, every: int = 100, chec
     """Run SLAM on ``frames`` synthetic frames into ``work`` (overwritten); return the measurement.
 
     ``overrides``: dotted config overrides (e.g. tiny iteration counts for a quick memory check)."""
-    from gsjax.app import checkpoints as checkpoint
-    from gsjax.app.checkpoints import checkpoint_bytes
-    from gsjax.app.compilation_cache import enable_compilation_cache
-    from gsjax.app.runner import RunOptions, run_slam
+    from gsjax.app.run_folder import checkpoints as checkpoint
+    from gsjax.app.run_folder.checkpoints import checkpoint_bytes
+    from gsjax.app.runtime.cache import enable_compilation_cache
+    from gsjax.app.session.runner import RunOptions, run_slam
     from gsjax.config.text import apply_overrides
     from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
     from gsjax.slam.presets import preset

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.app.compilation_cache import enable_compilation_cache
+from gsjax.app.runtime.cache import enable_compilation_cache
 from gsjax.camera import invert_transform
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.eval.image import render_metrics_splatam

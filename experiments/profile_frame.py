@@ -265,7 +265,7 @@ def main(argv=None) -> int:
     parser.add_argument("--compare", nargs="+", default=None, metavar="NAME:FIELD=V,...",
                         help="time the step and the tracker of these override sets side by side instead")
     args = parser.parse_args(argv)
-    from gsjax.app.compilation_cache import enable_compilation_cache
+    from gsjax.app.runtime.cache import enable_compilation_cache
 
     enable_compilation_cache()
     from gsjax.config.text import apply_overrides

@@ -15,7 +15,7 @@ import argparse
 
 import numpy as np
 
-from gsjax.app.compilation_cache import enable_compilation_cache
+from gsjax.app.runtime.cache import enable_compilation_cache
 from gsjax.data.room import dense_surface_map
 from gsjax.raster import RasterSettings, render
 

@@ -80,7 +80,7 @@ def main(argv=None) -> int:
     parser.add_argument("--frame", type=int, default=16)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
-    from gsjax.app.compilation_cache import enable_compilation_cache
+    from gsjax.app.runtime.cache import enable_compilation_cache
 
     enable_compilation_cache()
     sequence, config = open_sequence_for(args.sequence, args.path, args.frame + 1)

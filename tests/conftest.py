@@ -3,7 +3,7 @@
 import jax
 import pytest
 
-from gsjax.app.compilation_cache import enable_compilation_cache
+from gsjax.app.runtime.cache import enable_compilation_cache
 
 enable_compilation_cache()
 pytest_plugins = ["tests.support.compile_log"]  # GSJAX_COMPILE_LOG=DIR: every compilation, by test

@@ -23,7 +23,7 @@ def test_a_tutorial_runs_at_a_tiny_size(path, monkeypatch, capsys):
     # slam.run as written, through the program `gsjax run` exports for the same config (the suite's tiny one): the
     # same bits as the direct call (tests/app/test_programs.py), without compiling it a second time.
     from gsjax import slam
-    from gsjax.app.compilation_cache import exported_call
+    from gsjax.app.runtime.cache import exported_call
     from gsjax.slam import driver
 
     direct = driver.run

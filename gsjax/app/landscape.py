@@ -34,8 +34,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.app.compilation_cache import exported_call
-from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
+from gsjax.app.run_folder.layout import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
+from gsjax.app.runtime.cache import exported_call
 from gsjax.camera import invert_transform, se3_inverse, se3_log
 from gsjax.config.text import config_to_dict
 from gsjax.data.sequence import Sequence

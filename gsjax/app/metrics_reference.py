@@ -17,7 +17,7 @@ import typing
 from pathlib import Path
 from typing import Any
 
-from gsjax.app.run_outputs import PER_FRAME
+from gsjax.app.run_folder.outputs import PER_FRAME
 from gsjax.config.fields import field_docs
 from gsjax.eval.run_metrics import (
     CBKNNSummary,

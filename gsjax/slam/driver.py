@@ -1,7 +1,7 @@
 """SLAM over whole sequences in memory (:func:`run`), and the parts every chunked run shares: a chunk's frames
 padded to the program's size (:func:`pad_chunk`), the vmapped chunk program of a batch of configs
 (:func:`run_batch_chunk`), the capacity growth rule (:func:`dropped_in`, :func:`doubled`) and stacking configs and
-states (:func:`stack_trees`). No I/O, no timing: the shell's loop (:mod:`gsjax.app.session`) runs the same chunks
+states (:func:`stack_trees`). No I/O, no timing: the shell's loop (:mod:`gsjax.app.session.loop`) runs the same chunks
 with read-ahead, timing and its hooks.
 
     from gsjax import slam

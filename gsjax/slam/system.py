@@ -1,7 +1,7 @@
 """One SLAM step per frame (track -> densify -> map -> keyframe) and ``lax.scan`` over a chunk of frames.
 
 ``step(state, frame)`` is pure and jit-able; :func:`run_chunk` scans it over a stacked chunk of frames. The shell
-(:mod:`gsjax.app.runner`) streams chunks from disk, checkpoints and grows capacity between them. The first frame goes
+(:mod:`gsjax.app.session`) streams chunks from disk, checkpoints and grows capacity between them. The first frame goes
 through the same step: on the empty map every valid pixel is densified (SplaTAM's initialisation), tracking is
 skipped (the first camera defines the world frame), and the frame is mapped and becomes keyframe 0.
 

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gsjax.app.checkpoints import Checkpoints
-from gsjax.app.runner import run_slam
+from gsjax.app.run_folder.checkpoints import Checkpoints
+from gsjax.app.session.runner import run_slam
 from tests.support.kill_harness import KILL_EXIT
 from tests.support.tiny_slam import CHUNK, FRAMES, TINY_RUN, run_options, tiny_config, tiny_sequence
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from gsjax.app.cli import main
-from gsjax.app.compilation_cache import exported_call
+from gsjax.app.runtime.cache import exported_call
 from gsjax.config.text import apply_overrides
 from gsjax.data import open_sequence, write_tum
 from gsjax.frame import stack_frames, to_device

@@ -1,5 +1,5 @@
-"""The allocator setting of long runs (gsjax.app.memory): glibc's malloc limited to a few arenas, once, unless the
-user chose with MALLOC_ARENA_MAX."""
+"""The allocator setting of long runs (gsjax.app.runtime.memory): glibc's malloc limited to a few arenas, once,
+unless the user chose with MALLOC_ARENA_MAX."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import platform
 
 import pytest
 
-from gsjax.app import memory
+from gsjax.app.runtime import memory
 
 
 @pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="glibc only")

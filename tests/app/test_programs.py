@@ -1,6 +1,6 @@
-"""Exported SLAM programs (``gsjax.app.programs``): the same results as calling ``run_chunk``, a new store reads the
-file instead of tracing, keys follow the static config and the source, and anything unreadable or unexportable falls
-back."""
+"""Exported SLAM programs (``gsjax.app.runtime.programs``): the same results as calling ``run_chunk``, a new store
+reads the file instead of tracing, keys follow the static config and the source, and anything unreadable or
+unexportable falls back."""
 
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from gsjax import slam
-from gsjax.app import programs
-from gsjax.app.programs import ExportedPrograms, program_key, source_digest
+from gsjax.app.runtime import programs
+from gsjax.app.runtime.programs import ExportedPrograms, program_key, source_digest
 from gsjax.slam.system import run_chunk
 from tests.support.tiny_slam import CHUNK, assert_trees_equal, tiny_config, tiny_sequence
 
@@ -78,7 +78,7 @@ def test_a_process_that_keeps_its_own_executables_reads_them_back_instead_of_com
     into the process that compiled the same program)."""
     code = textwrap.dedent(f"""
         import sys, jax, jax.numpy as jnp
-        from gsjax.app import programs
+        from gsjax.app.runtime import programs
         programs.keeps_own_executables = lambda: True
         print(programs.ExportedPrograms(sys.argv[1]).call({_PROGRAM}, jnp.arange(5.0)))
     """)

@@ -8,8 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from gsjax.app.checkpoints import Checkpoints
 from gsjax.app.cli import main
+from gsjax.app.run_folder.checkpoints import Checkpoints
 from gsjax.config.text import config_to_dict
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory

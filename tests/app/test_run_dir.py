@@ -11,7 +11,15 @@ import sys
 import pytest
 
 from gsjax.app.cli import main
-from gsjax.app.run_dir import LOCK, RUN_OUTPUTS, RunDirError, check_run_dir, clear_previous_run, holder, locked_run_dir
+from gsjax.app.run_folder.layout import (
+    LOCK,
+    RUN_OUTPUTS,
+    RunDirError,
+    check_run_dir,
+    clear_previous_run,
+    holder,
+    locked_run_dir,
+)
 
 
 def previous_run(out):
@@ -65,7 +73,7 @@ def test_overwrite_removes_only_gsjax_outputs(tmp_path):
 
 # ------------------------------------------------------------------------------ one process per directory
 
-HOLD = ("import sys\nfrom gsjax.app.run_dir import locked_run_dir\nwith locked_run_dir(sys.argv[1]):\n"
+HOLD = ("import sys\nfrom gsjax.app.run_folder.layout import locked_run_dir\nwith locked_run_dir(sys.argv[1]):\n"
         "    print('held', flush=True)\n    sys.stdin.readline()\n")
 
 

@@ -11,10 +11,10 @@ import shutil
 import numpy as np
 import pytest
 
-from gsjax.app.checkpoints import Checkpoints
-from gsjax.app.recorder import compile_estimate
-from gsjax.app.run_dir import holder
-from gsjax.app.runner import run_slam
+from gsjax.app.run_folder.checkpoints import Checkpoints
+from gsjax.app.run_folder.layout import holder
+from gsjax.app.session.recorder import compile_estimate
+from gsjax.app.session.runner import run_slam
 from gsjax.config.text import apply_overrides
 from gsjax.eval.run_metrics import read_run_metrics
 from gsjax.io.ply import read_ply
@@ -176,7 +176,7 @@ def test_frames_per_second_after_a_resume_covers_the_whole_run(tmp_path, interru
 
 
 def _checkpoint_ledger(out):
-    from gsjax.app.checkpoints import Checkpoints
+    from gsjax.app.run_folder.checkpoints import Checkpoints
 
     checkpoints = Checkpoints(out / "checkpoints")
     try:

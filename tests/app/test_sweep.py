@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from gsjax.app.cli import main
-from gsjax.app.sweep import (
+from gsjax.app.sweep.grid import (
     GridAxis,
     batch_size,
     expand_grid,
@@ -117,7 +117,7 @@ def test_a_sweep_over_iteration_counts_or_cbknn_modes_runs_one_program_per_kind_
     """The issue's grids: each value a traced leaf of one program (the modes: ``paper`` one, with CB-KNN's correction
     compiled in, ``off`` and ``code_parity`` another). The programs the sweep calls are counted (each would be a
     compilation in a fresh process), and its rows are the separate runs', bit for bit."""
-    from gsjax.app import programs
+    from gsjax.app.runtime import programs
 
     keys, key_of = [], programs.program_key
     monkeypatch.setattr(programs, "program_key", lambda *a: keys.append(key_of(*a)) or keys[-1])
@@ -304,7 +304,7 @@ def test_processes_that_finish_their_share_far_apart_still_exchange_results():
     them waits."""
     code = textwrap.dedent("""
         import sys, time, jax
-        from gsjax.app.sweep_devices import maybe_initialize_distributed, share_results
+        from gsjax.app.sweep.devices import maybe_initialize_distributed, share_results
         maybe_initialize_distributed()
         me = jax.process_index()
         if me == 1:

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from gsjax.app.cli import main
-from gsjax.app.sweep import read_sweep_csv
+from gsjax.app.sweep.grid import read_sweep_csv
 from tests.support.kill_harness import KILL_EXIT
 from tests.support.tiny_slam import TINY_RUN
 

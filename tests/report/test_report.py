@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from gsjax.app.cli import main
-from gsjax.app.runner import run_slam
+from gsjax.app.session.runner import run_slam
 from gsjax.eval.run_metrics import read_run_metrics
 from gsjax.io.ply import read_ply
 from gsjax.io.trajectory import read_tum_trajectory
@@ -79,7 +79,12 @@ def test_every_run_writes_a_self_contained_report_with_every_section(runs):
     assert len(images_of(page)) == 9
     assert f"{metrics.trajectory.ate_rmse_c2w_cm:.2f}" in page
     assert f"{metrics.render.mean['psnr_db']:.2f}" in page
-    assert "slam" in page and "checkpoint" in page  # the stage timings
+    timings = re.search(r'<section id="timings">(.*?)</section>', page, re.S).group(1)
+    rows = dict(re.findall(r"<tr><td>([^<]*)</td><td>([^<]*)</td></tr>", timings))
+    # Every stage with its seconds, nothing else; but the report's own, timed after the page is written.
+    assert rows == {name.removesuffix("_s"): "–" if value is None else f"{value:.2f}"
+                    for name, value in metrics.stage_timings_s.items() if name != "report_s"}
+    assert {"slam", "checkpoint", "read_frames", "outputs"} <= rows.keys()
     assert "No warnings." in page and "&quot;cbknn&quot;: &quot;paper&quot;" in page  # escaped config.json
 
 

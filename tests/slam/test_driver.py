@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gsjax import slam
-from gsjax.app.compilation_cache import exported_call
+from gsjax.app.runtime.cache import exported_call
 from gsjax.config.text import apply_overrides
 from gsjax.frame import Frame, stack_frames
 from gsjax.gaussians import Gaussians

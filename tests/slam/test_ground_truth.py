@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gsjax.app.checkpoints import Checkpoints
 from gsjax.app.cli import main
+from gsjax.app.run_folder.checkpoints import Checkpoints
 from gsjax.data import open_sequence, write_tum
 from gsjax.io.trajectory import read_tum_trajectory
 from tests.support.recordings import shared_data

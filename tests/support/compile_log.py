@@ -1,11 +1,11 @@
-"""The suite's side of ``GSJAX_COMPILE_LOG`` (:mod:`gsjax.app.compile_log`): each line names the test that compiled
-the program (a module fixture's compilations go to the first test that uses it). Loaded by ``tests/conftest.py``."""
-
+"""The suite's side of ``GSJAX_COMPILE_LOG`` (:mod:`gsjax.app.runtime.compile_log`): each line names the test that
+compiled the program (a module fixture's compilations go to the first test that uses it). Loaded by
+``tests/conftest.py``.""" 
 from __future__ import annotations
 
 import pytest
 
-from gsjax.app import compile_log
+from gsjax.app.runtime import compile_log
 
 
 def pytest_configure(config):

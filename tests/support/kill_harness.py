@@ -27,11 +27,11 @@ KILL_EXIT = -signal.SIGKILL  # the return code a subprocess killed this way repo
 def main(trace: str, kill_at: str, argv: list[str]) -> int:
     from orbax.checkpoint._src.path import async_path
 
-    import gsjax.app.checkpoints
     import gsjax.app.cli
-    import gsjax.app.run_outputs
-    import gsjax.app.runner
-    import gsjax.app.session as session
+    import gsjax.app.run_folder.checkpoints
+    import gsjax.app.run_folder.outputs
+    import gsjax.app.session.loop as session
+    import gsjax.app.session.runner
     import gsjax.io.atomic as atomic
 
     log = open(trace, "a", buffering=1)

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.app.runner import RunOptions
+from gsjax.app.session.runner import RunOptions
 from gsjax.config.text import apply_overrides
 from gsjax.data.sequence import Sequence
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
@@ -193,7 +193,7 @@ def scan(stacked: Frame, config: SlamConfig | None = None, state: SlamState | No
     Returns:
       (the state after the frames, their StepOutputs [T, ...]).
     """
-    from gsjax.app.compilation_cache import exported_call
+    from gsjax.app.runtime.cache import exported_call
     from gsjax.slam.system import run_chunk, unknown_poses
 
     count = int(stacked.depth.shape[0])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gsjax.app.cli import main
-from gsjax.app.runner import run_slam
+from gsjax.app.session.runner import run_slam
 from gsjax.io.images import to_uint8
 from gsjax.io.ply import read_ply
 from gsjax.raster import render

@@ -46,8 +46,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"unrecognised arguments: {' '.join(extra)}")
     except SystemExit as exit_:
         return int(exit_.code or 0)
-    from gsjax.app.compilation_cache import enable_compilation_cache
-    from gsjax.app.memory import limit_malloc_arenas
+    from gsjax.app.runtime.cache import enable_compilation_cache
+    from gsjax.app.runtime.memory import limit_malloc_arenas
 
     enable_compilation_cache()
     limit_malloc_arenas()

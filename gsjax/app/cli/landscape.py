@@ -41,7 +41,7 @@ def add(sub) -> None:
 
 def run(args) -> int:
     from gsjax.app.landscape import LandscapeOptions, run_landscape
-    from gsjax.app.run_dir import LANDSCAPE_OUTPUTS, check_run_dir
+    from gsjax.app.run_folder.layout import LANDSCAPE_OUTPUTS, check_run_dir
 
     common.quiet_logs()
     common.configure(args)  # bad overrides are reported before any data is read

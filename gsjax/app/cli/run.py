@@ -49,11 +49,11 @@ def run_live(args) -> int:
     import signal
     import threading
 
-    from gsjax.app.live_camera import LIVE, LiveCamera
-    from gsjax.app.live_run import run_live as run_frames
-    from gsjax.app.run_dir import check_run_dir
-    from gsjax.app.run_outputs import summary_lines
-    from gsjax.app.runner import RunOptions
+    from gsjax.app.run_folder.layout import check_run_dir
+    from gsjax.app.run_folder.outputs import summary_lines
+    from gsjax.app.session.camera import LIVE, LiveCamera
+    from gsjax.app.session.live import run_live as run_frames
+    from gsjax.app.session.runner import RunOptions
     from gsjax.slam.presets import working_downscale
 
     if args.resume:
@@ -142,9 +142,9 @@ def run(args) -> int:
         return run_live(args)
     if args.realtime:
         raise common.UserError("--realtime plays a RealSense recording as a camera: --dataset realsense --path REC")
-    from gsjax.app.run_dir import check_run_dir
-    from gsjax.app.run_outputs import summary_lines
-    from gsjax.app.runner import RunOptions, run_slam
+    from gsjax.app.run_folder.layout import check_run_dir
+    from gsjax.app.run_folder.outputs import summary_lines
+    from gsjax.app.session.runner import RunOptions, run_slam
     from gsjax.slam.presets import PRESET_WIDTH
 
     common.quiet_logs()

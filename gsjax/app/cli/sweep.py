@@ -41,18 +41,18 @@ def add(sub) -> None:
 
 
 def run(args) -> int:
-    from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir
-    from gsjax.app.sweep import (
+    from gsjax.app.run_folder.layout import SWEEP_OUTPUTS, check_run_dir
+    from gsjax.app.sweep.devices import (
+        default_cpu_devices,
+        maybe_initialize_distributed,
+        request_cpu_devices,
+    )
+    from gsjax.app.sweep.grid import (
         SweepOptions,
         batch_size,
         expand_grid,
         parse_grid,
         run_sweep,
-    )
-    from gsjax.app.sweep_devices import (
-        default_cpu_devices,
-        maybe_initialize_distributed,
-        request_cpu_devices,
     )
 
     common.quiet_logs()

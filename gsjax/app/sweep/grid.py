@@ -3,17 +3,17 @@
 The grid is the product of ``--grid FIELD=V1,V2`` axes times the run seeds. Configs that differ only in traced
 fields (learning rates, loss weights, CB-KNN alpha / K0 / beta, noise levels, ...) share one compiled program; a
 static field in the grid (an iteration count, a mode) gives one program per value. ``--batch B`` configs run at a
-time over the same frames (:func:`gsjax.app.session.chunk_loop`, bounding memory); within a batch,
+time over the same frames (:func:`gsjax.app.session.loop.chunk_loop`, bounding memory); within a batch,
 ``--vmap-width V`` configs are stacked and run as ``jax.vmap`` of the whole tracking + mapping scan, the stacked
 axis sharded over every device of a 1-D mesh. With V = 1 (the CPU default: XLA:CPU runs the vmapped scan slower
 per config than the plain one) each config is one call of the plain program, configs spread round-robin over the
 devices and dispatched together, and every row is bit for bit the separate ``gsjax run``. On CPU the CLI asks for
-one device per two cores (:func:`gsjax.app.sweep_devices.request_cpu_devices`), so that many configs run at once.
+one device per two cores (:func:`gsjax.app.sweep.devices.request_cpu_devices`), so that many configs run at once.
 
 Multi-host: start every process with the same command and ``GSJAX_DISTRIBUTED=1`` (see
-:func:`gsjax.app.sweep_devices.maybe_initialize_distributed`); the mesh then spans every process's devices. With V = 1
+:func:`gsjax.app.sweep.devices.maybe_initialize_distributed`); the mesh then spans every process's devices. With V = 1
 each process runs the configs of its own devices and the finished ones are gathered
-(:func:`gsjax.app.sweep_devices.share_results`); a stacked group is
+(:func:`gsjax.app.sweep.devices.share_results`); a stacked group is
 sharded over the processes and gathered after each chunk. Process 0 writes every output; the others write nothing.
 Tested with two processes on one machine.
 
@@ -36,12 +36,12 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from gsjax.app.compilation_cache import exported_call
-from gsjax.app.progress import Progress
-from gsjax.app.run_dir import SWEEP_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
-from gsjax.app.session import Group, Runtime, chunk_loop, sequence_frames, start_capacity
-from gsjax.app.sweep_devices import batch_mesh, place_batch, share_results, to_host
-from gsjax.app.sweep_resume import finished_runs, prepare_rerun, run_folder
+from gsjax.app.run_folder.layout import SWEEP_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
+from gsjax.app.runtime.cache import exported_call
+from gsjax.app.runtime.progress import Progress
+from gsjax.app.session.loop import Group, Runtime, chunk_loop, sequence_frames, start_capacity
+from gsjax.app.sweep.devices import batch_mesh, place_batch, share_results, to_host
+from gsjax.app.sweep.resume import finished_runs, prepare_rerun, run_folder
 from gsjax.config.text import apply_overrides
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
@@ -195,7 +195,7 @@ def _per_config(groups, members, parts, final_states, count):
 class SweepOptions:
     """Shell options of a sweep: ``out`` directory, frames per ``chunk``, ``batch`` configs per program call
     (None: all), ``eval_every`` and ``samples`` as in ``gsjax run``, ``progress`` bar, ``overwrite``, ``resume``
-    (run only the configs a previous sweep into ``out`` did not finish: :mod:`gsjax.app.sweep_resume`)."""
+    (run only the configs a previous sweep into ``out`` did not finish: :mod:`gsjax.app.sweep.resume`)."""
 
     out: Path
     chunk: int = 8
@@ -220,7 +220,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
               *, describe: dict | None = None, input_warnings: tuple[str, ...] = (), say=print) -> list[dict]:
     """Run the grid of ``axes`` x ``seeds`` over ``base`` on ``sequence``; write ``runs/NNN`` per config and the
     sweep tables; return the rows (one dict per config, the columns of ``sweep.csv``). The writing process holds
-    ``options.out``'s lock (:func:`gsjax.app.run_dir.locked_run_dir`) while it runs."""
+    ``options.out``'s lock (:func:`gsjax.app.run_folder.layout.locked_run_dir`) while it runs."""
     out = Path(options.out)
     writer = jax.process_index() == 0  # the other processes of a multi-host sweep write nothing
     if writer:
@@ -232,9 +232,9 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
 
 def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: list[int], options: SweepOptions,
            writer: bool, describe: dict | None, input_warnings: tuple[str, ...], say) -> list[dict]:
-    from gsjax.app.checkpoints import RunLedger
-    from gsjax.app.recorder import Recorder
-    from gsjax.app.run_outputs import OutputOptions, is_evaluation_frame, run_record
+    from gsjax.app.run_folder.checkpoints import RunLedger
+    from gsjax.app.run_folder.outputs import OutputOptions, is_evaluation_frame, run_record
+    from gsjax.app.session.recorder import Recorder
 
     points = expand_grid(base, axes, seeds)
     out = Path(options.out)

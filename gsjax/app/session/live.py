@@ -1,11 +1,11 @@
-"""SLAM on a live frame source (:class:`gsjax.app.live_camera.LiveCamera`), one frame at a time as frames come:
+"""SLAM on a live frame source (:class:`gsjax.app.session.camera.LiveCamera`), one frame at a time as frames come:
 ``gsjax run --dataset realsense --path live`` (or ``--path REC --realtime``, a recording played as if live).
 
-The frames go through the shell's one loop (:func:`gsjax.app.session.chunk_loop`, chunks of one frame: the camera
-is waited for while the previous frame's SLAM runs) into one :class:`gsjax.app.recorder.Recorder`, as a recording's
-do: the map grows when it is full (said, and counted in ``stage_timings_s.regrow_s``), checkpoints are written every
-``checkpoint_every`` frames (a crash keeps what was mapped; there is no resume: a live camera cannot be re-read),
-and every output is written at the end. The loop takes the oldest frame the camera still holds (it holds the
+The frames go through the shell's one loop (:func:`gsjax.app.session.loop.chunk_loop`, chunks of one frame: the
+camera is waited for while the previous frame's SLAM runs) into one :class:`gsjax.app.session.recorder.Recorder`, as a
+recording's do: the map grows when it is full (said, and counted in ``stage_timings_s.regrow_s``), checkpoints are
+written every ``checkpoint_every`` frames (a crash keeps what was mapped; there is no resume: a live camera cannot be
+re-read), and every output is written at the end. The loop takes the oldest frame the camera still holds (it holds the
 newest few and drops the rest, counted), and stops at ``max_frames``, when the source ends, on Ctrl-C or SIGTERM
 (``stop``); the dropped frames are counted in ``metrics.json``'s warnings."""
 
@@ -17,14 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.app.checkpoints import Checkpoints, RunLedger
-from gsjax.app.compilation_cache import exported_call
-from gsjax.app.live_camera import LiveCamera, LiveFrame
-from gsjax.app.recorder import Recorder
-from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
-from gsjax.app.run_outputs import run_record
-from gsjax.app.runner import RunOptions
-from gsjax.app.session import Group, Runtime, chunk_loop, one_config, start_capacity
+from gsjax.app.run_folder.checkpoints import Checkpoints, RunLedger
+from gsjax.app.run_folder.layout import check_run_dir, clear_previous_run, locked_run_dir
+from gsjax.app.run_folder.outputs import run_record
+from gsjax.app.runtime.cache import exported_call
+from gsjax.app.session.camera import LiveCamera, LiveFrame
+from gsjax.app.session.loop import Group, Runtime, chunk_loop, one_config, start_capacity
+from gsjax.app.session.recorder import Recorder
+from gsjax.app.session.runner import RunOptions
 from gsjax.data.errors import DatasetError
 from gsjax.data.images import downscale_color, downscale_depth
 from gsjax.data.sequence import Sequence
@@ -39,7 +39,7 @@ def run_live(camera: LiveCamera, config: SlamConfig, options: RunOptions, *, dow
              observe: Callable | None = None, say: Callable[[str], None] = print) -> RunMetrics:
     """SLAM on ``camera``'s frames (reduced by ``downscale``) until ``max_frames`` are processed, the source ends or
     ``stop`` is set (or Ctrl-C); writes every output under ``options.out`` and returns the metrics. ``observe(state,
-    outputs)`` as for :func:`gsjax.app.runner.run_slam` (the live viewer), after every frame."""
+    outputs)`` as for :func:`gsjax.app.session.runner.run_slam` (the live viewer), after every frame."""
     out = Path(options.out)
     check_run_dir(out, overwrite=options.overwrite)
     stop = stop or threading.Event()

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gsjax.app.run_dir import RunDirError
+from gsjax.app.run_folder.layout import RunDirError
 from gsjax.config.text import canonical_config_dict
 from gsjax.eval.run_input import RUN_FORMAT, RunInput, older_run_message, read_run_input
 from gsjax.eval.run_metrics import RunMetrics, read_run_metrics

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from gsjax.app.run_dir import RunDirError
+from gsjax.app.run_folder.layout import RunDirError
 from gsjax.eval.run_input import RUN_FORMAT, older_run_message
 from gsjax.eval.run_metrics import CheckpointSummary
 from gsjax.io.atomic import atomic_write_bytes, remove_stale_temporaries

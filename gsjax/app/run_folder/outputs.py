@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.app.run_warnings import run_warnings
+from gsjax.app.run_folder.run_warnings import run_warnings
 from gsjax.camera import invert_transform
 from gsjax.config.text import config_to_dict
 from gsjax.data.sequence import Sequence
@@ -34,7 +34,7 @@ from gsjax.slam.state import SlamState
 from gsjax.slam.system import StepOutputs
 
 if TYPE_CHECKING:
-    from gsjax.app.checkpoints import CheckpointLedger
+    from gsjax.app.run_folder.checkpoints import CheckpointLedger
 
 
 class OutputOptions(NamedTuple):
@@ -69,7 +69,7 @@ def finish_run(sequence: Sequence, config: SlamConfig, options: OutputOptions, s
     ``outputs``: the per-frame :class:`gsjax.slam.system.StepOutputs` on the host ([T, ...] numpy arrays);
     ``timings``: stage times (s);
     ``record``: what ``config.json`` holds; ``metrics.json``'s warnings are ``input_warnings`` (what opening the
-    sequence reported), the run's own (:func:`gsjax.app.run_warnings.run_warnings` of ``outputs``) and
+    sequence reported), the run's own (:func:`gsjax.app.run_folder.run_warnings.run_warnings` of ``outputs``) and
     ``resume_warnings``; ``checkpoints``: the checkpoints the run wrote; ``frames``: host frames the run still
     holds, by index (:func:`is_evaluation_frame` ones; the others are read from the sequence again).
     """

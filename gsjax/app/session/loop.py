@@ -1,11 +1,11 @@
 """The shell's one SLAM loop: frames from a source (a recording, a live camera) through the SLAM chunk program a chunk
 at a time, for one config or a batch of configs over the same frames, with capacity growth.
 
-``gsjax run`` and its ``--resume`` (:mod:`gsjax.app.runner`), the live camera (:mod:`gsjax.app.live_run`) and ``gsjax
-sweep`` (:mod:`gsjax.app.sweep`) all run :func:`chunk_loop`; each chunk goes to a
-:class:`gsjax.app.recorder.Recorder` per config, which writes the run's folder. The core's in-memory
-:func:`gsjax.slam.run` runs the same chunks with the same growth rule, without the timing, read-ahead and hooks
-kept here.
+``gsjax run`` and its ``--resume`` (:mod:`gsjax.app.session.runner`), the live camera
+(:mod:`gsjax.app.session.live`) and ``gsjax sweep`` (:mod:`gsjax.app.sweep.grid`) all run :func:`chunk_loop`; each
+chunk goes to a :class:`gsjax.app.session.recorder.Recorder` per config, which writes the run's folder. The core's
+in-memory :func:`gsjax.slam.run` runs the same chunks with the same growth rule, without the timing, read-ahead and
+hooks kept here.
 
 Capacity: the map has a fixed number of slots. When a chunk could not insert every new Gaussian (in any config of
 a group), the group's capacity doubles (:func:`gsjax.slam.driver.doubled`) and the chunk is re-run from its saved
@@ -61,7 +61,8 @@ class Runtime(NamedTuple):
 
     Attributes:
       call: ``call(run_chunk, *args)`` runs a one-config group's chunk (the shell passes
-        :meth:`gsjax.app.programs.ExportedPrograms.call`, which skips tracing in a warm process); None: a plain call.
+        :meth:`gsjax.app.runtime.programs.ExportedPrograms.call`, which skips tracing in a warm process); None: a
+        plain call.
       place: ``place(group_index, state)`` puts a grown state back where the group lives; None: JAX's default
         placement.
       fetch: brings a chunk's outputs to the host (a multi-process sweep gathers a group sharded over processes).

@@ -1,7 +1,7 @@
 """``gsjax run`` on a recording and its ``--resume``: the run folder checked and locked, the newest readable
-checkpoint restored, the frames through the shell's one loop (:func:`gsjax.app.session.chunk_loop`, which grows the
+checkpoint restored, the frames through the shell's one loop (:func:`gsjax.app.session.loop.chunk_loop`, which grows the
 map's capacity, said here, when a chunk could not insert every new Gaussian) into one
-:class:`gsjax.app.recorder.Recorder` (checkpoints every ``checkpoint_every`` frames, so ``--resume`` continues
+:class:`gsjax.app.session.recorder.Recorder` (checkpoints every ``checkpoint_every`` frames, so ``--resume`` continues
 exactly where the run stopped; the outputs at the end), with a progress bar (frame, tracking loss, Gaussians, ATE
 so far when ground truth exists, frames/s).
 
@@ -22,15 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.app.checkpoints import Checkpoints, RunLedger
-from gsjax.app.compilation_cache import exported_call
-from gsjax.app.memory import limit_malloc_arenas
-from gsjax.app.progress import Progress
-from gsjax.app.recorder import Recorder
-from gsjax.app.run_dir import check_run_dir, clear_previous_run, locked_run_dir
-from gsjax.app.run_outputs import OutputOptions, run_record
-from gsjax.app.run_warnings import run_warnings
-from gsjax.app.session import Group, Runtime, chunk_loop, one_config, sequence_frames, start_capacity
+from gsjax.app.run_folder.checkpoints import Checkpoints, RunLedger
+from gsjax.app.run_folder.layout import check_run_dir, clear_previous_run, locked_run_dir
+from gsjax.app.run_folder.outputs import OutputOptions, run_record
+from gsjax.app.run_folder.run_warnings import run_warnings
+from gsjax.app.runtime.cache import exported_call
+from gsjax.app.runtime.memory import limit_malloc_arenas
+from gsjax.app.runtime.progress import Progress
+from gsjax.app.session.loop import Group, Runtime, chunk_loop, one_config, sequence_frames, start_capacity
+from gsjax.app.session.recorder import Recorder
 from gsjax.camera import invert_transform
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
@@ -103,16 +103,16 @@ def run_slam(
     viewer); the time it takes is ``stage_timings_s["observe_s"]``.
     ``input_warnings``: what opening the sequence warned about, listed first in ``metrics.json``'s ``warnings``.
 
-    Raises :class:`gsjax.app.run_dir.RunDirError` before writing anything when ``options.out`` holds a previous run
-    and neither ``resume`` nor ``overwrite`` is set, cannot be used at all (:func:`check_run_dir`), or is held by
-    another live run (:func:`gsjax.app.run_dir.locked_run_dir`).
+    Raises :class:`gsjax.app.run_folder.layout.RunDirError` before writing anything when ``options.out`` holds a
+    previous run and neither ``resume`` nor ``overwrite`` is set, cannot be used at all (:func:`check_run_dir`), or is
+    held by another live run (:func:`gsjax.app.run_folder.layout.locked_run_dir`).
     """
     out = Path(options.out)
     check_run_dir(out, resume=options.resume, overwrite=options.overwrite)
     if len(sequence) < 1:
         raise ValueError(f"sequence {sequence.name!r} has no frames")
     sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
-    limit_malloc_arenas()  # before the checkpoints' threads allocate (see gsjax.app.memory)
+    limit_malloc_arenas()  # before the checkpoints' threads allocate (see gsjax.app.runtime.memory)
     with locked_run_dir(out):
         return _run_locked(sequence, config, options, describe, on_chunk, observe, input_warnings)
 

@@ -1,7 +1,7 @@
 """Where a sweep's configs run: CPU devices asked for before JAX's backend starts, the processes of a multi-host
 sweep (``jax.distributed``), a 1-D mesh over every device, and moving results between processes and the host.
 
-Used by :mod:`gsjax.app.sweep` (which places configs) and ``gsjax sweep`` (which asks for devices and starts the
+Used by :mod:`gsjax.app.sweep.grid` (which places configs) and ``gsjax sweep`` (which asks for devices and starts the
 distributed runtime before anything touches the backend).
 """
 

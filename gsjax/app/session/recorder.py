@@ -1,7 +1,7 @@
 """What one run writes, from its first chunk to its metrics: ``config.json``, the per-frame outputs in one typed
 form (:class:`gsjax.slam.system.StepOutputs` of numpy arrays, from the chunk to the checkpoints and the files), the
 evaluation frames it keeps, its stage timings, its checkpoints, and at the end every output file
-(:func:`gsjax.app.run_outputs.finish_run`).
+(:func:`gsjax.app.run_folder.outputs.finish_run`).
 
 ``gsjax run`` and its ``--resume`` and the live camera keep one :class:`Recorder` with checkpoints, fed chunk by
 chunk (:meth:`Recorder.add`); ``gsjax sweep`` one per config, without checkpoints, given its outputs once the batch
@@ -13,8 +13,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from gsjax.app.checkpoints import Checkpoints, RunLedger
-from gsjax.app.run_outputs import OutputOptions, finish_run, is_evaluation_frame
+from gsjax.app.run_folder.checkpoints import Checkpoints, RunLedger
+from gsjax.app.run_folder.outputs import OutputOptions, finish_run, is_evaluation_frame
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_input import RunInput
 from gsjax.eval.run_metrics import RunMetrics
@@ -112,7 +112,7 @@ class Recorder:
 
     def finish(self, sequence: Sequence, config: SlamConfig, state: SlamState, *, input_warnings=(),
                resume_warnings=()) -> RunMetrics:
-        """Evaluate the run and write every output file (:func:`gsjax.app.run_outputs.finish_run`)."""
+        """Evaluate the run and write every output file (:func:`gsjax.app.run_folder.outputs.finish_run`)."""
         ledger = self.ledger
         if ledger.first_chunk_s is not None:
             ledger.timings["compile_s_estimate"] = compile_estimate(
