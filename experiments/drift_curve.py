@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.camera import invert_rigid, rotation_angle_rad
+from gsjax.io.run_folder import read_run
 from gsjax.report.figures import Series, series_png
-from gsjax.report.run_record import read_run
 
 RESULTS = Path(__file__).resolve().parents[1] / "experiments" / "results"
 COLUMNS = ("run", "frame", "error_cm", "error_deg", "change_cm", "tracking_loss", "depth_valid", "gt_motion_cm",

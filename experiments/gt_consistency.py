@@ -27,8 +27,8 @@ import numpy as np
 
 from gsjax.camera import backproject, invert_transform
 from gsjax.data import open_sequence
+from gsjax.io.run_folder import read_run
 from gsjax.report.figures import Series, series_png
-from gsjax.report.run_record import read_run
 
 RESULTS = Path(__file__).resolve().parents[1] / "experiments" / "results"
 COLUMNS = ("trajectory", "gap", "pairs", "depth_median_mm", "grey_mean_abs")

@@ -34,12 +34,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.app.run_folder.layout import LANDSCAPE_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
+from gsjax.app.run_folder.layout import check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.runtime.cache import exported_call
 from gsjax.camera import invert_transform, se3_inverse, se3_log
 from gsjax.config.text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json
+from gsjax.io.run_folder import LANDSCAPE_FILES
 from gsjax.slam import landscape as pure
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import pad_chunk
@@ -112,7 +113,7 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     """Build the map, evaluate each mode's landscapes, write ``landscape.json`` / ``landscape.png`` (and
     ``landscape2d.png``); return the JSON document."""
     out = Path(options.out)
-    check_run_dir(out, overwrite=options.overwrite, outputs=LANDSCAPE_OUTPUTS)
+    check_run_dir(out, overwrite=options.overwrite, outputs=LANDSCAPE_FILES)
     t = options.frame
     if t >= len(sequence):
         raise ValueError(f"--frame {t} is past the sequence's last frame ({len(sequence) - 1})")
@@ -189,7 +190,7 @@ def run_landscape(sequence: Sequence, config: SlamConfig, options: LandscapeOpti
     title = f"{sequence.name}, frame {t} (map: {options.map_from}, reference: {reference})"
     with locked_run_dir(out):  # one process at a time writes a directory; a previous landscape goes only now
         if options.overwrite:
-            clear_previous_run(out, LANDSCAPE_OUTPUTS)
+            clear_previous_run(out, LANDSCAPE_FILES)
         atomic_write_json(out / "landscape.json", document)
         plot_landscape(out / "landscape.png", document, title=title)
         if options.grid2d:

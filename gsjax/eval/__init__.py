@@ -2,8 +2,8 @@
 
 See :mod:`gsjax.eval.trajectory` for the two ATE variants (true RMSE of camera centres vs SplaTAM's mean of
 w2c translations) and the unaligned drift per frame, :mod:`gsjax.eval.image` for PSNR / SSIM / MS-SSIM / depth L1
-(no LPIPS), :mod:`gsjax.eval.run_metrics` and :mod:`gsjax.eval.run_input` for ``metrics.json`` and ``config.json``
-as typed records, and :mod:`gsjax.eval.stats`
+(no LPIPS), :mod:`gsjax.eval.renders` for a finished map's render metrics, :mod:`gsjax.eval.run_metrics` and
+:mod:`gsjax.eval.run_input` for ``metrics.json`` and ``config.json`` as typed records, and :mod:`gsjax.eval.stats`
 for studies' paired differences with bootstrap intervals.
 """
 

@@ -1,6 +1,6 @@
 """``report.html``: the self-contained HTML report of a run, or of several runs side by side (``gsjax report``).
 
-* :mod:`gsjax.report.run_record`: a finished run read back from its directory (also used by the viewer).
+* :mod:`gsjax.io.run_folder`: a finished run read back from its directory (also used by the viewer).
 * :mod:`gsjax.report.figures`: the plots, as SVG (the page) or PNG (a file) bytes.
 * :mod:`gsjax.report.page`: the page.
 """
@@ -12,8 +12,8 @@ from pathlib import Path
 
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.io.atomic import atomic_write_text
+from gsjax.io.run_folder import RunRecord, RunRecordError, expand_runs, read_run
 from gsjax.report.page import is_report, report_html
-from gsjax.report.run_record import RunRecord, RunRecordError, expand_runs, read_run
 
 __all__ = ["RunRecord", "RunRecordError", "default_output", "expand_runs", "read_run", "report_html",
            "write_report"]

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from gsjax.eval.run_metrics import RunMetrics
+from gsjax.io.run_folder import RunRecord
 from gsjax.report.figures import Series, series_svg
-from gsjax.report.run_record import RunRecord
 
 # How every page gsjax writes begins (so that rewriting one never replaces a file gsjax did not write).
 HEADER = "<!doctype html>\n<!-- gsjax report -->\n"

@@ -41,8 +41,8 @@ def open_run(run_dir: str | Path, host: str = "127.0.0.1", port: int = 8080) -> 
     from gsjax.camera import make_intrinsics
     from gsjax.config.text import config_from_dict
     from gsjax.io.ply import read_ply
+    from gsjax.io.run_folder import RunRecordError, read_run
     from gsjax.raster import RasterSettings
-    from gsjax.report.run_record import RunRecordError, read_run
     from gsjax.viewer.sources import MapRenderer, RunImages
 
     run = read_run(run_dir)

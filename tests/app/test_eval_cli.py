@@ -49,6 +49,17 @@ def test_eval_writes_the_metrics_json_and_prints_them(tmp_path, capsys):
     assert (tmp_path / "p" / "ate_over_time.png").stat().st_size > 1000
 
 
+def test_eval_takes_a_run_folder_for_its_trajectory(tmp_path, capsys):
+    est, gt = make_files(tmp_path)  # tmp_path/trajectory.txt, as a run's folder holds it
+    assert main(["eval", "--est", str(tmp_path), "--gt", str(gt), "--out", str(tmp_path / "folder.json")]) == 0
+    assert main(["eval", "--est", str(est), "--gt", str(gt), "--out", str(tmp_path / "file.json")]) == 0
+    by_folder, by_file = (json.loads((tmp_path / name).read_text()) for name in ("folder.json", "file.json"))
+    assert by_folder == by_file
+    (tmp_path / "empty").mkdir()
+    assert main(["eval", "--est", str(tmp_path / "empty"), "--gt", str(gt)]) == 2
+    assert "a folder without trajectory.txt (not a finished gsjax run)" in capsys.readouterr().err
+
+
 def test_eval_defaults_the_output_next_to_the_estimate_and_honours_max_dt(tmp_path, capsys):
     est, gt = make_files(tmp_path)
     assert main(["eval", "--est", str(est), "--gt", str(gt), "--max-dt", "0.001"]) == 2  # 3 ms offset: no match

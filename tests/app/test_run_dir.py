@@ -13,13 +13,13 @@ import pytest
 from gsjax.app.cli import main
 from gsjax.app.run_folder.layout import (
     LOCK,
-    RUN_OUTPUTS,
     RunDirError,
     check_run_dir,
     clear_previous_run,
     holder,
     locked_run_dir,
 )
+from gsjax.io.run_folder import RUN_FILES
 
 
 def previous_run(out):
@@ -68,7 +68,7 @@ def test_overwrite_removes_only_gsjax_outputs(tmp_path):
     (out / "notes.txt").write_text("mine")
     assert clear_previous_run(out) == ["config.json", "checkpoints", "renders"]
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
-    assert "notes.txt" not in RUN_OUTPUTS
+    assert "notes.txt" not in RUN_FILES
 
 
 # ------------------------------------------------------------------------------ one process per directory

@@ -12,7 +12,8 @@ from gsjax.config.names import BAGS, DATASETS
 def add(sub) -> None:
     p = sub.add_parser("eval", help="trajectory metrics (ATE, RPE) of an estimate against ground truth",
                        parents=[common.COMMON])
-    p.add_argument("--est", type=Path, required=True, help="estimated trajectory, TUM format (camera-to-world)")
+    p.add_argument("--est", type=Path, required=True,
+                   help="estimated trajectory, TUM format (camera-to-world), or a run's folder (its trajectory.txt)")
     p.add_argument("--gt", type=Path, required=True,
                    help="ground truth: a TUM trajectory file, or a dataset directory (with --dataset)")
     p.add_argument("--dataset", choices=DATASETS + BAGS, default=None,
@@ -66,6 +67,12 @@ def run(args) -> int:
     from gsjax.io.atomic import atomic_write_json
     from gsjax.io.trajectory import read_tum_trajectory
 
+    if args.est.is_dir():
+        from gsjax.io.run_folder import TRAJECTORY
+
+        if not (args.est / TRAJECTORY).is_file():
+            raise common.UserError(f"--est {args.est}: a folder without {TRAJECTORY} (not a finished gsjax run)")
+        args.est = args.est / TRAJECTORY
     if not args.est.is_file():
         raise common.UserError(f"--est {args.est}: no such file")
     if not (np.isfinite(args.max_dt) and args.max_dt >= 0):

@@ -41,7 +41,8 @@ def add(sub) -> None:
 
 def run(args) -> int:
     from gsjax.app.landscape import LandscapeOptions, run_landscape
-    from gsjax.app.run_folder.layout import LANDSCAPE_OUTPUTS, check_run_dir
+    from gsjax.app.run_folder.layout import check_run_dir
+    from gsjax.io.run_folder import LANDSCAPE_FILES
 
     common.quiet_logs()
     common.configure(args)  # bad overrides are reported before any data is read
@@ -50,7 +51,7 @@ def run(args) -> int:
                                map_from=args.map_from, seed=args.seed, chunk=args.chunk, overwrite=args.overwrite,
                                modes=tuple(m.strip() for m in args.modes.split(",")), grid2d=args.grid2d,
                                batch=args.batch)
-    check_run_dir(args.out, overwrite=args.overwrite, outputs=LANDSCAPE_OUTPUTS)
+    check_run_dir(args.out, overwrite=args.overwrite, outputs=LANDSCAPE_FILES)
     if args.max_frames is None:
         args.max_frames = args.frame + 1  # frames past T are not read
     (sequence, factor), _ = common.dataset_warnings(lambda: common.open_run_sequence(args))

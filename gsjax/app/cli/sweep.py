@@ -41,7 +41,7 @@ def add(sub) -> None:
 
 
 def run(args) -> int:
-    from gsjax.app.run_folder.layout import SWEEP_OUTPUTS, check_run_dir
+    from gsjax.app.run_folder.layout import check_run_dir
     from gsjax.app.sweep.devices import (
         default_cpu_devices,
         maybe_initialize_distributed,
@@ -54,6 +54,7 @@ def run(args) -> int:
         parse_grid,
         run_sweep,
     )
+    from gsjax.io.run_folder import SWEEP_FILES
 
     common.quiet_logs()
     if args.seeds < 1:
@@ -67,7 +68,7 @@ def run(args) -> int:
     options = SweepOptions(out=args.out, chunk=args.chunk, batch=args.batch, vmap_width=args.vmap_width,
                            eval_every=args.eval_every,
                            progress=not args.no_progress, overwrite=args.overwrite, resume=args.resume)
-    check_run_dir(args.out, resume=args.resume, overwrite=args.overwrite, outputs=SWEEP_OUTPUTS)
+    check_run_dir(args.out, resume=args.resume, overwrite=args.overwrite, outputs=SWEEP_FILES)
     request_cpu_devices(args.devices or default_cpu_devices(batch_size(args.batch, configs)))
     maybe_initialize_distributed()
     (sequence, factor), input_warnings = common.dataset_warnings(lambda: common.open_run_sequence(args))

@@ -16,18 +16,13 @@ import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
-# Every file and folder a run writes directly under its directory.
-RUN_OUTPUTS = ("config.json", "checkpoints", "trajectory.txt", "groundtruth.txt", "metrics.json", "trajectory.png",
-               "renders", "map.ply", "report.html")
+from gsjax.io.run_folder import RUN_FILES, SWEEP_FILES
 
 
 class RunDirError(ValueError):
     """The output directory cannot be used as asked; the message says why and what to do."""
 
 
-# ... of a sweep and of a landscape.
-SWEEP_OUTPUTS = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json", "runs", "report.html")
-LANDSCAPE_OUTPUTS = ("landscape.json", "landscape.png", "landscape2d.png")
 
 
 # The lock a live run holds on its directory (an advisory flock: the kernel drops it when the process ends, however
@@ -85,13 +80,13 @@ def _in_use(out: Path, pid: int) -> str:
             "choose another --out")
 
 
-def previous_outputs(out: Path, outputs: tuple[str, ...] = RUN_OUTPUTS) -> list[str]:
+def previous_outputs(out: Path, outputs: tuple[str, ...] = RUN_FILES) -> list[str]:
     """The names of gsjax ``outputs`` present in ``out`` (empty when it is missing or holds none)."""
     return [name for name in outputs if (Path(out) / name).exists()] if Path(out).is_dir() else []
 
 
 def check_run_dir(out: Path, *, resume: bool = False, overwrite: bool = False,
-                  outputs: tuple[str, ...] = RUN_OUTPUTS) -> None:
+                  outputs: tuple[str, ...] = RUN_FILES) -> None:
     """Raise RunDirError (naming ``--out``) unless a run may write to ``out``; writes nothing.
 
     Usable: a missing directory whose nearest existing parent is a writable directory; an empty writable
@@ -121,7 +116,7 @@ def check_run_dir(out: Path, *, resume: bool = False, overwrite: bool = False,
     if present:
         if not (resume or overwrite):
             listed = ", ".join(name + ("/" if (out / name).is_dir() else "") for name in present)
-            again = "--resume to continue it, " if outputs in (RUN_OUTPUTS, SWEEP_OUTPUTS) else ""
+            again = "--resume to continue it, " if outputs in (RUN_FILES, SWEEP_FILES) else ""
             raise RunDirError(f"--out {out} holds a previous run ({listed}); nothing was changed: pass {again}"
                               "--overwrite to replace it, or choose another --out")
         return
@@ -129,7 +124,7 @@ def check_run_dir(out: Path, *, resume: bool = False, overwrite: bool = False,
         raise RunDirError(f"--out {out} is not empty and holds no gsjax run; choose a new or empty directory")
 
 
-def clear_previous_run(out: Path, outputs: tuple[str, ...] = RUN_OUTPUTS) -> list[str]:
+def clear_previous_run(out: Path, outputs: tuple[str, ...] = RUN_FILES) -> list[str]:
     """Remove gsjax's own ``outputs`` from ``out`` (``--overwrite``); other files stay. Returns the names removed."""
     removed = previous_outputs(out, outputs)
     for name in removed:

@@ -19,11 +19,11 @@ from gsjax.app.run_folder.run_warnings import run_warnings
 from gsjax.camera import invert_transform
 from gsjax.config.text import config_to_dict
 from gsjax.data.sequence import Sequence
-from gsjax.eval.image import render_metrics_splatam
+from gsjax.eval.renders import evaluation_frames, frame_render_metrics, render_metrics
 from gsjax.eval.run_input import RunInput
 from gsjax.eval.run_metrics import CBKNNSummary, RenderMetrics, RunMetrics
 from gsjax.eval.trajectory import ate_rmse_c2w, evaluate_trajectory
-from gsjax.io.atomic import atomic_write_json
+from gsjax.io import run_folder as folder
 from gsjax.io.images import render_panel, save_rgb_png
 from gsjax.io.plots import plot_cbknn_maps, plot_trajectory_top_view
 from gsjax.io.ply import write_ply
@@ -71,7 +71,7 @@ def finish_run(sequence: Sequence, config: SlamConfig, options: OutputOptions, s
     ``record``: what ``config.json`` holds; ``metrics.json``'s warnings are ``input_warnings`` (what opening the
     sequence reported), the run's own (:func:`gsjax.app.run_folder.run_warnings.run_warnings` of ``outputs``) and
     ``resume_warnings``; ``checkpoints``: the checkpoints the run wrote; ``frames``: host frames the run still
-    holds, by index (:func:`is_evaluation_frame` ones; the others are read from the sequence again).
+    holds, by index (:func:`gsjax.eval.renders.is_evaluation_frame` ones; the others are read from the sequence again).
     """
     def read(t: int):
         return frames[t] if frames and t in frames else sequence.read_host(t)
@@ -93,9 +93,9 @@ def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOption
     # compared with the dataset's files directly); the SLAM world frame is the first camera.
     anchor = gt_c2w[0] if gt_valid[0] else np.eye(4)
     est_world = anchor @ est_c2w
-    write_tum_trajectory(out / "trajectory.txt", timestamps, est_world)
+    write_tum_trajectory(out / folder.TRAJECTORY, timestamps, est_world)
     if gt_valid.any():  # for the report and the viewer; the dataset's own poses, in its world frame
-        write_tum_trajectory(out / "groundtruth.txt", timestamps[gt_valid], gt_c2w[gt_valid])
+        write_tum_trajectory(out / folder.GROUNDTRUTH, timestamps[gt_valid], gt_c2w[gt_valid])
 
     trajectory, constant_pose = None, None
     # Every frame with a valid GT pose is evaluated; the rigid alignment absorbs the world frames (the SLAM one is
@@ -105,14 +105,15 @@ def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOption
         identity = np.broadcast_to(np.eye(4), est_c2w.shape).copy()
         constant_pose = 100 * ate_rmse_c2w(identity, gt_c2w, gt_valid).value_m
         aligned = ate_rmse_c2w(est_c2w, gt_c2w, gt_valid)
-        plot_trajectory_top_view(out / "trajectory.png", aligned.alignment.apply_points(est_c2w[aligned.used, :3, 3]),
-                                 gt_c2w[aligned.used, :3, 3],
+        used = aligned.used
+        plot_trajectory_top_view(out / folder.TRAJECTORY_PLOT, aligned.alignment.apply_points(est_c2w[used, :3, 3]),
+                                 gt_c2w[used, :3, 3],
                                  title=f"{sequence.name}: ATE RMSE {100 * aligned.value_m:.2f} cm")
     else:
-        plot_trajectory_top_view(out / "trajectory.png", est_c2w[:, :3, 3], None,
+        plot_trajectory_top_view(out / folder.TRAJECTORY_PLOT, est_c2w[:, :3, 3], None,
                                  title=f"{sequence.name} (no ground truth)")
     render_metrics, cbknn = _render_metrics(sequence, read, config, options, state, outputs)
-    write_ply(out / "map.ply", state.gaussians)
+    write_ply(out / folder.MAP, state.gaussians)
     timings["outputs_s"] = time.perf_counter() - t0
     slam_frames_per_s = len(est_c2w) / timings["slam_s"] if timings["slam_s"] > 0 else None
     metrics = RunMetrics(
@@ -151,7 +152,7 @@ def _write_outputs(sequence: Sequence, config: SlamConfig, options: OutputOption
     t0 = time.perf_counter()
     write_report(out, metrics=metrics)
     timings["report_s"] = time.perf_counter() - t0
-    atomic_write_json(out / "metrics.json", metrics.to_json())
+    folder.write_metrics(out, metrics)
     return metrics
 
 
@@ -167,63 +168,48 @@ def _json_number(value):
     return float(value) if np.isfinite(value) else None
 
 
-# Module-level jits: a sweep's configs (and a process's runs) share one traced and compiled program each.
-_eval_render = jax.jit(render)
-
-
+# A module-level jit: a sweep's configs (and a process's runs) share one traced and compiled program.
 @jax.jit
 def _cbknn_stats(gaussians, w2c, intrinsics, settings, params, motion):
     return render(gaussians, w2c, intrinsics, settings, cbknn=params, motion=motion).stats.cbknn
 
 
-def is_evaluation_frame(t: int, eval_every: int) -> bool:
-    """SplaTAM's evaluation frames: t = 0 and (t + 1) % eval_every == 0."""
-    return t == 0 or (t + 1) % eval_every == 0
-
-
 def _render_metrics(sequence, read, config: SlamConfig, options: OutputOptions, state: SlamState,
                     outputs: StepOutputs) -> tuple[RenderMetrics, CBKNNSummary | None]:
-    """SplaTAM's rendering metrics (method_spec B.3) on frames t = 0 and (t + 1) % eval_every == 0, except frames
-    skipped for lack of depth: the final map rendered canonically at the estimated poses, compared with the input
-    (masked by valid depth). ``mean`` is None when no frame is left.
+    """SplaTAM's rendering metrics (:mod:`gsjax.eval.renders`) on the evaluation frames; ``mean`` is None when no
+    frame is left.
 
     ``options.samples`` of those frames, spread evenly, get a labelled render-vs-input panel in
     ``renders/frame_T.png``; when CB-KNN smooths renders (``paper``), they are also rendered with CB-KNN (the
     frame's own motion gamma) for its diagnostics: K and rho maps in ``renders/cbknn_T.png`` and, returned second,
     their statistics (None otherwise)."""
-    total = len(outputs.w2c)
-    frames = [t for t in range(total) if is_evaluation_frame(t, options.eval_every) and not outputs.skipped[t]]
+    frames = evaluation_frames(outputs.skipped, options.eval_every)
     if not frames:
         return RenderMetrics(), None
     samples = set(np.unique(np.linspace(0, len(frames) - 1, min(options.samples, len(frames))).round().astype(int)))
     smoothing = config.cbknn.smooth_renders
     params = config.cbknn.params
     per_frame, diagnostics = [], []
-    renders = Path(options.out) / "renders"
-    renders.mkdir(parents=True, exist_ok=True)
+    (Path(options.out) / folder.RENDERS).mkdir(parents=True, exist_ok=True)
     for position, t in enumerate(frames):
         frame = read(t)
-        w2c = jnp.asarray(outputs.w2c[t], jnp.float32)
-        out = _eval_render(state.gaussians, w2c, sequence.intrinsics, config.raster)
-        values = render_metrics_splatam(out.color, out.depth, jnp.asarray(frame.color), jnp.asarray(frame.depth))
-        per_frame.append({k: float(v) for k, v in values.items()})
+        out, values = frame_render_metrics(state.gaussians, outputs.w2c[t], sequence.intrinsics, config.raster,
+                                           frame.color, frame.depth)
+        per_frame.append(values)
         if position not in samples:
             continue
         panel = render_panel(np.asarray(out.color), frame.color, np.asarray(out.depth), frame.depth)
-        save_rgb_png(renders / f"frame_{t:06d}.png", panel)
+        save_rgb_png(folder.render_panel(options.out, t), panel)
         if smoothing:
             gamma = float(outputs.gamma[t])
-            stats = jax.device_get(_cbknn_stats(state.gaussians, w2c, sequence.intrinsics, config.raster, params,
-                                                jnp.float32(gamma)))
-            diagnostics.append(_cbknn_sample(stats, t, gamma, params.cell, renders / f"cbknn_{t:06d}.png"))
-    mean = {k: float(np.mean([p[k] for p in per_frame])) for k in per_frame[0]}
-    render_metrics = RenderMetrics(frames=frames, mean=dict(mean, depth_l1_cm=100 * mean["depth_l1_m"]),
-                                   per_frame=per_frame)
+            stats = jax.device_get(_cbknn_stats(state.gaussians, jnp.asarray(outputs.w2c[t], jnp.float32),
+                                                sequence.intrinsics, config.raster, params, jnp.float32(gamma)))
+            diagnostics.append(_cbknn_sample(stats, t, gamma, params.cell, folder.cbknn_panel(options.out, t)))
     cbknn = None
     if smoothing:
         cbknn = CBKNNSummary(mode=config.cbknn.mode, alpha=float(params.alpha), k0=float(params.k0),
                              beta=float(params.beta), cell=params.cell, samples=diagnostics)
-    return render_metrics, cbknn
+    return render_metrics(frames, per_frame), cbknn
 
 
 def _cbknn_sample(stats, frame: int, gamma: float, cell: int, path: Path) -> dict:
@@ -260,7 +246,6 @@ def summary_lines(metrics: RunMetrics, out: Path) -> list[str]:
     if metrics.frames_per_s:
         lines.append(f"{metrics.frames} frames, {metrics.seconds_per_frame:.2f} s/frame, "
                      f"{metrics.num_gaussians} Gaussians")
-    checkpoints = " checkpoints/" if metrics.checkpoints is not None else ""  # a live run writes none
-    lines.append(f"outputs in {Path(out).resolve()}: report.html trajectory.txt metrics.json trajectory.png renders/ "
-                 f"map.ply config.json{checkpoints}")
+    written = [name + "/" * (Path(out) / name).is_dir() for name in folder.RUN_FILES if (Path(out) / name).exists()]
+    lines.append(f"outputs in {Path(out).resolve()}: {' '.join(written)}")
     return lines

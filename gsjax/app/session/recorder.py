@@ -11,14 +11,14 @@ is done.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 from gsjax.app.run_folder.checkpoints import Checkpoints, RunLedger
-from gsjax.app.run_folder.outputs import OutputOptions, finish_run, is_evaluation_frame
+from gsjax.app.run_folder.outputs import OutputOptions, finish_run
 from gsjax.data.sequence import Sequence
+from gsjax.eval.renders import is_evaluation_frame
 from gsjax.eval.run_input import RunInput
 from gsjax.eval.run_metrics import RunMetrics
-from gsjax.io.atomic import atomic_write_json
+from gsjax.io.run_folder import write_config
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import capacity_of, concat_outputs
 from gsjax.slam.state import SlamState
@@ -66,7 +66,7 @@ class Recorder:
     def write_config(self, record: RunInput) -> None:
         """(Re)write ``config.json`` (a live run adds its dropped frames at the end)."""
         self.record = record
-        atomic_write_json(Path(self.options.out) / "config.json", record.to_json())
+        write_config(self.options.out, record)
 
     @property
     def outputs(self) -> StepOutputs:

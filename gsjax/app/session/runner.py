@@ -36,6 +36,7 @@ from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.eval.trajectory import ate_so_far
 from gsjax.io.atomic import remove_stale_temporaries
+from gsjax.io.run_folder import RENDERS
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs
@@ -130,7 +131,7 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
         if removed:
             log.info("--overwrite: removed the previous run's %s from %s", ", ".join(removed), out)
     out.mkdir(parents=True, exist_ok=True)
-    for directory in (out, out / "renders"):  # what writers killed mid-write left (never a finished output)
+    for directory in (out, out / RENDERS):  # what writers killed mid-write left (never a finished output)
         remove_stale_temporaries(directory)
     record = run_record(sequence, config, chunk=options.chunk, seed=options.seed, describe=describe)
     kf_capacity = keyframe_capacity_for(total, config.keyframe_every)

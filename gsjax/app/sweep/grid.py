@@ -36,16 +36,17 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from gsjax.app.run_folder.layout import SWEEP_OUTPUTS, check_run_dir, clear_previous_run, locked_run_dir
+from gsjax.app.run_folder.layout import check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.runtime.cache import exported_call
 from gsjax.app.runtime.progress import Progress
 from gsjax.app.session.loop import Group, Runtime, chunk_loop, sequence_frames, start_capacity
 from gsjax.app.sweep.devices import batch_mesh, place_batch, share_results, to_host
-from gsjax.app.sweep.resume import finished_runs, prepare_rerun, run_folder
+from gsjax.app.sweep.resume import finished_runs, prepare_rerun
 from gsjax.config.text import apply_overrides
 from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.io.atomic import atomic_write_bytes, atomic_write_json, remove_stale_temporaries
+from gsjax.io.run_folder import SWEEP_FILES, sweep_run
 from gsjax.slam.config import SlamConfig
 from gsjax.slam.driver import concat_outputs, stack_trees, static_key, unstack_tree
 from gsjax.slam.loops import LoopCaps, common_caps
@@ -224,7 +225,7 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
     out = Path(options.out)
     writer = jax.process_index() == 0  # the other processes of a multi-host sweep write nothing
     if writer:
-        check_run_dir(out, resume=options.resume, overwrite=options.overwrite, outputs=SWEEP_OUTPUTS)
+        check_run_dir(out, resume=options.resume, overwrite=options.overwrite, outputs=SWEEP_FILES)
     sequence.read_host(0)  # an unreadable first frame fails before anything in ``out`` changes
     with locked_run_dir(out) if writer else contextlib.nullcontext():
         return _sweep(sequence, base, axes, seeds, options, writer, describe, input_warnings, say)
@@ -233,14 +234,15 @@ def run_sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds:
 def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: list[int], options: SweepOptions,
            writer: bool, describe: dict | None, input_warnings: tuple[str, ...], say) -> list[dict]:
     from gsjax.app.run_folder.checkpoints import RunLedger
-    from gsjax.app.run_folder.outputs import OutputOptions, is_evaluation_frame, run_record
+    from gsjax.app.run_folder.outputs import OutputOptions, run_record
     from gsjax.app.session.recorder import Recorder
+    from gsjax.eval.renders import is_evaluation_frame
 
     points = expand_grid(base, axes, seeds)
     out = Path(options.out)
     if writer:
         if options.overwrite:
-            clear_previous_run(out, SWEEP_OUTPUTS)
+            clear_previous_run(out, SWEEP_FILES)
         out.mkdir(parents=True, exist_ok=True)
         remove_stale_temporaries(out)
     k = sequence.intrinsics
@@ -273,7 +275,7 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
         f"call, {total} frames each")
     progress = Progress(total * len(batches), 0, options.progress and writer)
     rows = [_row(p, done[p.index], done[p.index].stage_timings_s.get("slam_s"),
-                 run_folder(out, p.index).relative_to(out)) for p in points if p.index in done]
+                 sweep_run(out, p.index).relative_to(out)) for p in points if p.index in done]
     timings = dict(slam_s=0.0, regrow_s=0.0, read_frames_s=0.0, outputs_s=0.0, first_chunk_s=[])
     t_start = time.perf_counter()
     used_devices: set = set()
@@ -311,7 +313,7 @@ def _sweep(sequence: Sequence, base: SlamConfig, axes: list[GridAxis], seeds: li
             t0 = time.perf_counter()
             for i, point in enumerate(batch):
                 state, outputs = per_config[i]
-                run_dir = run_folder(out, point.index)
+                run_dir = sweep_run(out, point.index)
                 run_outputs = StepOutputs(*(np.asarray(v) for v in outputs))
                 record = run_record(sequence, point.config, chunk=options.chunk, seed=point.seed, describe=describe,
                                     frames=total, sweep=dict(values=point.values, batch=number, batch_size=len(batch)))

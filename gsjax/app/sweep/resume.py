@@ -12,14 +12,10 @@ from pathlib import Path
 
 from gsjax.app.run_folder.layout import RunDirError
 from gsjax.config.text import canonical_config_dict
-from gsjax.eval.run_input import RUN_FORMAT, RunInput, older_run_message, read_run_input
-from gsjax.eval.run_metrics import RunMetrics, read_run_metrics
+from gsjax.eval.run_input import RUN_FORMAT, RunInput, older_run_message
+from gsjax.eval.run_metrics import RunMetrics
 from gsjax.io.atomic import remove_stale_temporaries
-
-
-def run_folder(out: Path, index: int) -> Path:
-    """The folder of config ``index`` of the sweep in ``out``."""
-    return Path(out) / "runs" / f"{index:03d}"
+from gsjax.io.run_folder import RENDERS, is_finished, read_config, read_metrics, sweep_run
 
 
 def finished_runs(out: Path, expected: dict[int, RunInput]) -> dict[int, RunMetrics]:
@@ -34,15 +30,14 @@ def finished_runs(out: Path, expected: dict[int, RunInput]) -> dict[int, RunMetr
     if not runs.is_dir():
         return done
     for folder in sorted(p for p in runs.iterdir() if p.is_dir()):
-        if not (folder / "metrics.json").exists():
+        if not is_finished(folder):
             continue
         index = int(folder.name) if folder.name.isdigit() else -1
         if index not in expected:
             raise RunDirError(f"--resume: {folder} is a finished run outside this sweep's {len(expected)} configs; "
                               "resume with the same --grid and --seeds, or use --overwrite or a new --out")
         try:
-            saved = read_run_input(folder / "config.json")
-            metrics = read_run_metrics(folder / "metrics.json")
+            saved, metrics = read_config(folder), read_metrics(folder)
         except ValueError as error:
             raise RunDirError(f"--resume: {error}") from None
         if saved.format != RUN_FORMAT:
@@ -63,7 +58,7 @@ def _comparable(record: RunInput) -> tuple[dict, dict]:
 
 def prepare_rerun(out: Path, index: int) -> None:
     """Remove what a killed writer left in config ``index``'s folder (hidden temporaries; never a whole output)."""
-    folder = run_folder(out, index)
-    for directory in (folder, folder / "renders"):
+    folder = sweep_run(out, index)
+    for directory in (folder, folder / RENDERS):
         if directory.is_dir():
             remove_stale_temporaries(directory)

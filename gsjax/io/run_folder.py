@@ -1,10 +1,13 @@
-"""A finished run read back from its directory (what ``gsjax run`` wrote), for the report and the viewer.
+"""A run's folder in one place: the names of its files, where a sweep puts its runs, writing the records it holds,
+and reading a finished run back (for the report, the viewer and a sweep's resume).
 
-A run directory holds ``metrics.json`` (written last: its presence marks a finished run), ``config.json``,
-``trajectory.txt`` (camera-to-world, in the dataset's world frame when frame 0 has ground truth),
-``groundtruth.txt`` (the dataset's poses, when it has any), ``map.ply`` (in the SLAM world frame, the first
-camera's; ``metrics.json``'s ``world_from_map`` takes it to the trajectory's frame) and ``renders/``. Runs made
-before a file or key existed read back with that part missing (None, or empty).
+A run's folder holds ``config.json`` (what the run was given, written first; :class:`gsjax.eval.run_input.RunInput`),
+``checkpoints/``, ``trajectory.txt`` (camera-to-world, in the dataset's world frame when frame 0 has ground truth),
+``groundtruth.txt`` (the dataset's poses, when it has any), ``trajectory.png``, ``renders/`` (``frame_T.png``
+render-vs-input panels, ``cbknn_T.png`` CB-KNN's maps), ``map.ply`` (in the SLAM world frame, the first camera's;
+``metrics.json``'s ``world_from_map`` takes it to the trajectory's frame), ``report.html`` and, written last,
+``metrics.json`` (:class:`gsjax.eval.run_metrics.RunMetrics`): its presence marks a finished run. A sweep's folder
+holds its tables and one run folder per config, ``runs/NNN``.
 """
 
 from __future__ import annotations
@@ -18,10 +21,66 @@ import numpy as np
 
 from gsjax.camera import invert_transform
 from gsjax.eval.association import associate_timestamps
-from gsjax.eval.run_input import RunInput
-from gsjax.eval.run_metrics import RunMetrics
+from gsjax.eval.run_input import RunInput, read_run_input
+from gsjax.eval.run_metrics import RunMetrics, read_run_metrics
 from gsjax.eval.trajectory import Drift, drift, ground_truth_on_estimate
+from gsjax.io.atomic import atomic_write_json
 from gsjax.io.trajectory import read_tum_trajectory
+
+CONFIG = "config.json"
+CHECKPOINTS = "checkpoints"
+TRAJECTORY = "trajectory.txt"
+GROUNDTRUTH = "groundtruth.txt"
+METRICS = "metrics.json"
+TRAJECTORY_PLOT = "trajectory.png"
+RENDERS = "renders"
+MAP = "map.ply"
+REPORT = "report.html"
+# Every file and folder a run writes directly under its folder, in the order they are written.
+RUN_FILES = (CONFIG, CHECKPOINTS, TRAJECTORY, GROUNDTRUTH, TRAJECTORY_PLOT, RENDERS, MAP, REPORT, METRICS)
+# ... of a sweep and of a landscape.
+SWEEP_FILES = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json", "runs", REPORT)
+LANDSCAPE_FILES = ("landscape.json", "landscape.png", "landscape2d.png")
+
+
+def sweep_run(out: str | Path, index: int) -> Path:
+    """The folder of config ``index`` of the sweep in ``out``: ``runs/NNN``."""
+    return Path(out) / "runs" / f"{index:03d}"
+
+
+def render_panel(folder: str | Path, frame: int) -> Path:
+    """Frame ``frame``'s render-vs-input panel."""
+    return Path(folder) / RENDERS / f"frame_{frame:06d}.png"
+
+
+def cbknn_panel(folder: str | Path, frame: int) -> Path:
+    """Frame ``frame``'s CB-KNN K and rho maps."""
+    return Path(folder) / RENDERS / f"cbknn_{frame:06d}.png"
+
+
+def write_config(folder: str | Path, record: RunInput) -> None:
+    """``config.json`` (atomically)."""
+    atomic_write_json(Path(folder) / CONFIG, record.to_json())
+
+
+def write_metrics(folder: str | Path, metrics: RunMetrics) -> None:
+    """``metrics.json`` (atomically; written last, it marks the run finished)."""
+    atomic_write_json(Path(folder) / METRICS, metrics.to_json())
+
+
+def is_finished(folder: str | Path) -> bool:
+    """Whether ``folder`` holds a finished run (its ``metrics.json``)."""
+    return (Path(folder) / METRICS).exists()
+
+
+def read_config(folder: str | Path) -> RunInput:
+    """``config.json`` of the run in ``folder``; ValueError naming the file when it cannot be read."""
+    return read_run_input(Path(folder) / CONFIG)
+
+
+def read_metrics(folder: str | Path) -> RunMetrics:
+    """``metrics.json`` of the run in ``folder``; ValueError naming the file when it cannot be read."""
+    return read_run_metrics(Path(folder) / METRICS)
 
 
 class RunRecordError(ValueError):
@@ -124,19 +183,19 @@ def read_run(path: str | Path, metrics: RunMetrics | None = None) -> RunRecord:
     if not path.is_dir():
         raise RunRecordError(f"{path}: no such run directory")
     if metrics is None:
-        value = _read_json(path / "metrics.json", required=True)
+        value = _read_json(path / METRICS, required=True)
         try:
             metrics = RunMetrics.from_json(value)
         except ValueError as error:
-            raise RunRecordError(f"{path / 'metrics.json'}: {error}") from None
-    value = _read_json(path / "config.json", required=False)
+            raise RunRecordError(f"{path / METRICS}: {error}") from None
+    value = _read_json(path / CONFIG, required=False)
     try:
         record = None if value is None else RunInput.from_json(value)
     except ValueError as error:
-        raise RunRecordError(f"{path / 'config.json'}: {error}") from None
-    timestamps, est_c2w = _read_trajectory(path / "trajectory.txt", required=True)
-    gt_timestamps, gt_c2w = _read_trajectory(path / "groundtruth.txt", required=False)
-    renders = path / "renders"
+        raise RunRecordError(f"{path / CONFIG}: {error}") from None
+    timestamps, est_c2w = _read_trajectory(path / TRAJECTORY, required=True)
+    gt_timestamps, gt_c2w = _read_trajectory(path / GROUNDTRUTH, required=False)
+    renders = path / RENDERS
     return RunRecord(path=path, name=path.name, metrics=metrics, record=record, timestamps=timestamps, est_c2w=est_c2w,
                      gt_timestamps=gt_timestamps, gt_c2w=gt_c2w, panels=_frames_of(renders, "frame"),
                      cbknn_panels=_frames_of(renders, "cbknn"))
@@ -146,7 +205,7 @@ def expand_runs(paths: list[str | Path]) -> list[Path]:
     """The run directories ``paths`` name: a sweep's directory (with ``sweep.json``) stands for its ``runs/*``."""
     runs = []
     for path in map(Path, paths):
-        if (path / "sweep.json").is_file() and (path / "runs").is_dir():
+        if (path / "sweep.json").is_file() and (path / "runs").is_dir():  # SWEEP_FILES
             runs += sorted(p for p in (path / "runs").iterdir() if p.is_dir())
         else:
             runs.append(path)
