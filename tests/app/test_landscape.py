@@ -14,7 +14,6 @@ import pytest
 
 from gsjax.app.cli import main
 from gsjax.app.runtime.cache import exported_call
-from gsjax.config.text import apply_overrides
 from gsjax.data import open_sequence, write_tum
 from gsjax.frame import stack_frames, to_device
 from gsjax.slam import landscape as pure
@@ -23,19 +22,27 @@ from gsjax.slam.losses import rendered_depth, tracking_mask
 from gsjax.slam.presets import with_cbknn_mode
 from gsjax.slam.system import run_chunk, unknown_poses
 from gsjax.slam.tracking import TrackingProblem, tracking_objective
-from tests.support.tiny_slam import CHUNK, FRAMES, TINY_OVERRIDES, relative_gt_w2c, tiny_config, tiny_sequence
+from tests.support.tiny_slam import (
+    CHUNK,
+    FRAMES,
+    TINY_OVERRIDES,
+    relative_gt_w2c,
+    replaced,
+    tiny_config,
+    tiny_sequence,
+)
 
 FRAME = 4
 STEPS = 3  # offsets -1, 0, 1: the tracker's runs (2 modes x (2 axes x 3 + 3^2 + 1)) are the module's time
 # The tiny tests' config (their SLAM program: the counts are traced) with 30 tracking and mapping iterations: the
 # tiny runs' 2 mapping iterations leave a map whose loss is not lowest at the ground-truth pose.
-COUNTS = {"tracking.iters": "30", "mapping.iters": "30"}
-OVERRIDES = [token for name, value in {**TINY_OVERRIDES, **COUNTS}.items() for token in (f"--{name}", value)]
+COUNTS = {"tracking.iters": 30, "mapping.iters": 30}
+OVERRIDES = [token for name, value in {**TINY_OVERRIDES, **COUNTS}.items() for token in (f"--{name}", str(value))]
 RUN = ["--dataset", "synthetic", "--downscale", "4", "--chunk", str(CHUNK), *OVERRIDES]
 
 
 def config():
-    return apply_overrides(tiny_config(), COUNTS)
+    return replaced(tiny_config(), COUNTS)
 
 
 # The axes and their 2-D grid (steps^2 tracker runs more, in the same compiled program as the axes').

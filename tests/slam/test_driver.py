@@ -16,13 +16,17 @@ from gsjax.frame import Frame, stack_frames
 from gsjax.gaussians import Gaussians
 from gsjax.slam.config import NoiseConfig
 from gsjax.slam.noise import add_depth_noise, perturb_map, perturb_stored_map
+from gsjax.slam.presets import preset, with_cbknn_mode
 from tests.support.tiny_slam import (
     CHUNK,
     FRAMES,
+    TINY_OVERRIDES,
+    WIDTH,
     all_finite,
     assert_trees_equal,
     frames,
     relative_gt_w2c,
+    replaced,
     scan,
     tiny_config,
     tiny_sequence,
@@ -35,6 +39,32 @@ def run_tiny(config=None, seed=0, poses=None, source=None):
     direct call gives the same bits, test_programs)."""
     return slam.run(tiny_sequence() if source is None else source, config or tiny_config(),
                     tiny_sequence().intrinsics, seed=seed, poses=poses, chunk=CHUNK, call=exported_call())
+
+
+@pytest.mark.parametrize("mode", ["off", "paper"])
+def test_tiny_config_is_the_config_the_command_line_builds(mode):
+    """The tests build configs from typed values (:func:`replaced`); the tiny config is the one ``gsjax run --preset
+    cpu --cbknn MODE`` builds from :data:`TINY_OVERRIDES` (the command line's text), leaf types and tree structure
+    included, so the CLI tests run the same compiled program."""
+    typed = tiny_config(mode)
+    parsed = apply_overrides(with_cbknn_mode(preset("cpu", WIDTH), mode), TINY_OVERRIDES)
+    assert typed == parsed
+    assert jax.tree_util.tree_structure(typed) == jax.tree_util.tree_structure(parsed)
+    assert [type(x) for x in jax.tree_util.tree_leaves(typed)] == [type(x) for x in jax.tree_util.tree_leaves(parsed)]
+
+
+def test_replaced_names_the_path_of_an_unknown_field_or_a_value_of_another_type():
+    config = tiny_config()
+    with pytest.raises(AttributeError, match="tracking.itres"):
+        replaced(config, {"tracking.itres": 3})
+    with pytest.raises(AttributeError, match="caps"):
+        replaced(config, {"caps": config.caps})  # derived, not a setting
+    with pytest.raises(TypeError, match="tracking.iters"):
+        replaced(config, {"tracking.iters": "3"})
+    with pytest.raises(TypeError, match="tracking.lr_trans"):
+        replaced(config, {"tracking.lr_trans": 1})  # an int for a float field: another program
+    with pytest.raises(TypeError, match="tracking.stop"):
+        replaced(config, {"tracking.stop": config.tracking.stop})  # a section: set its fields
 
 
 def test_slam_run_equals_the_chunked_scan_bit_for_bit():
@@ -106,11 +136,11 @@ def test_map_noise_perturbs_means_in_cm_and_colours_with_the_configured_std():
 
 
 def test_noise_changes_the_run_reproducibly_and_zero_noise_is_the_plain_run():
-    noisy_config = apply_overrides(tiny_config(), {"noise.depth_cm": "1.0", "noise.map_means_cm": "0.5"})
+    noisy_config = replaced(tiny_config(), {"noise.depth_cm": 1.0, "noise.map_means_cm": 0.5})
     noisy = run_tiny(noisy_config)
     assert trees_differ(noisy.outputs, run_tiny().outputs)
     assert_trees_equal(run_tiny(noisy_config).outputs, noisy.outputs)  # same seed, same noise
-    zero = apply_overrides(tiny_config(), {"noise.depth_cm": "0", "noise.map_rgb": "0.0"})
+    zero = replaced(tiny_config(), {"noise.depth_cm": 0.0, "noise.map_rgb": 0.0})
     assert not zero.caps.noise and noisy_config.caps.noise  # zero levels: a program without the draws
     assert_trees_equal(run_tiny(zero).outputs, run_tiny().outputs)
     # Zero levels in the program that draws (a sweep's row beside noisy ones): the plain run still.
@@ -133,16 +163,16 @@ def test_persistent_noise_perturbs_the_stored_map_at_its_frame_only():
 
 def test_persistent_noise_stays_in_the_map_from_its_frame_on():
     plain = run_tiny()
-    config = apply_overrides(tiny_config(), {"noise.persistent_means_cm": "1.0", "noise.persistent_frame": "3"})
+    config = replaced(tiny_config(), {"noise.persistent_means_cm": 1.0, "noise.persistent_frame": 3})
     noisy = run_tiny(config)
     before = jax.tree_util.tree_map(lambda x: x[:3], noisy.outputs)
     assert_trees_equal(before, jax.tree_util.tree_map(lambda x: x[:3], plain.outputs))
     assert not np.allclose(noisy.w2c[3], plain.w2c[3], atol=1e-7)  # frame 3 is tracked against the noisy map
     assert trees_differ(noisy.state.gaussians, plain.state.gaussians)
     # Once, not afresh per frame: the fresh per-frame noise of the same level is another run.
-    fresh = run_tiny(apply_overrides(tiny_config(), {"noise.map_means_cm": "1.0"}))
+    fresh = run_tiny(replaced(tiny_config(), {"noise.map_means_cm": 1.0}))
     assert trees_differ(noisy.outputs, fresh.outputs)
-    zero = apply_overrides(tiny_config(), {"noise.persistent_means_cm": "0", "noise.persistent_frame": "2"})
+    zero = replaced(tiny_config(), {"noise.persistent_means_cm": 0.0, "noise.persistent_frame": 2})
     assert_trees_equal(run_tiny(zero).outputs, plain.outputs)
     assert all_finite(noisy.outputs)
 
@@ -161,7 +191,7 @@ def test_mapping_every_other_frame_skips_mapping_on_the_others_only():
     """``mapping.every`` 2: frames 1, 3 and 5 (neither even nor keyframes) are tracked and densified but not
     mapped (mapping loss 0); frames 0, 2 and 4 are mapped as in the plain run up to then."""
     plain = run_tiny()
-    sparse = run_tiny(apply_overrides(tiny_config(), {"mapping.every": "2"}))
+    sparse = run_tiny(replaced(tiny_config(), {"mapping.every": 2}))
     loss = np.asarray(sparse.outputs.mapping_loss)
     assert np.all(loss[[1, 3, 5]] == 0.0) and np.all(loss[[0, 2, 4]] > 0.0)
     assert np.asarray(plain.outputs.mapping_loss)[1] > 0.0

@@ -11,7 +11,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import constant_velocity, orthonormalize, se3_exp
-from gsjax.config.text import apply_overrides
 from gsjax.slam.tracking import TrackingProblem, track, track_guarded, within_step_bound
 from tests.support.tiny_slam import (
     CHUNK,
@@ -19,6 +18,7 @@ from tests.support.tiny_slam import (
     all_finite,
     assert_trees_equal,
     frames,
+    replaced,
     scan,
     tiny_config,
     tiny_sequence,
@@ -71,7 +71,7 @@ def test_a_gaussian_with_a_non_finite_parameter_is_freed_before_tracking_and_cou
 
 
 def test_the_step_bound_measures_camera_centre_and_rotation():
-    config = apply_overrides(tiny_config(), {"tracking.guard.max_step_m": "0.1", "tracking.guard.max_step_deg": "10"})
+    config = replaced(tiny_config(), {"tracking.guard.max_step_m": 0.1, "tracking.guard.max_step_deg": 10.0})
     start = orthonormalize(se3_exp(jnp.asarray([0.3, -0.2, 1.0, 0.1, 0.2, -0.1])))
     moved = lambda delta: se3_exp(jnp.asarray(delta, jnp.float32)) @ start  # noqa: E731
     assert bool(within_step_bound(start, start, config.tracking))
@@ -86,7 +86,7 @@ def test_the_step_bound_measures_camera_centre_and_rotation():
 def test_a_pose_beyond_the_bound_is_retried_then_falls_back_to_the_prediction():
     """With a bound no tracked pose can meet (1 micrometre), every tracked frame is retried, the retry fails the
     bound too, and the frame keeps its constant-velocity prediction; the counts land in the state."""
-    config = apply_overrides(tiny_config(), {"tracking.guard.max_step_m": "1e-6"})
+    config = replaced(tiny_config(), {"tracking.guard.max_step_m": 1e-6})
     state, out = scan(frames(0, FRAMES), config)
     tracked = np.arange(FRAMES) >= 1
     np.testing.assert_array_equal(np.asarray(out.retried), tracked)
@@ -106,7 +106,7 @@ def test_a_loss_jump_is_retried_and_keeps_the_lower_loss():
     """A loss-jump factor below 1 flags every frame with a previous tracked frame (2 on): each is tracked again
     with smaller steps and keeps the attempt with the lower loss, so frame 2's loss is at most the plain run's;
     frame 1 has no reference and is not retried; nothing falls back to the prediction."""
-    config = apply_overrides(tiny_config(), {"tracking.guard.loss_jump": "1e-3"})
+    config = replaced(tiny_config(), {"tracking.guard.loss_jump": 1e-3})
     state, out = scan(frames(0, FRAMES), config)
     np.testing.assert_array_equal(np.asarray(out.retried), np.arange(FRAMES) >= 2)
     assert not np.any(np.asarray(out.diverged))
@@ -121,7 +121,7 @@ def test_the_retry_is_the_tracker_again_with_its_steps_scaled_and_the_lower_loss
     """``track_guarded`` with a forced retry (a tiny previous loss) equals two plain ``track`` calls, the second
     with both step sizes times ``retry_lr_scale``: the pose of the lower loss, both attempts' iterations. (A scale
     above 1 here, so that the second attempt wins at 3 iterations.)"""
-    config = apply_overrides(tiny_config(), {"tracking.guard.retry_lr_scale": "2"})
+    config = replaced(tiny_config(), {"tracking.guard.retry_lr_scale": 2.0})
     state, _ = scan(frames(0, CHUNK), config)
     frame = frames(CHUNK, CHUNK + 1)
     cfg = config.tracking

@@ -12,10 +12,9 @@ import numpy as np
 import pytest
 
 from gsjax.camera import invert_rigid, rotation_angle_rad
-from gsjax.config.text import apply_overrides
 from gsjax.slam import landscape as pure
 from gsjax.slam.tracking import TrackingProblem
-from tests.support.tiny_slam import first_frame_map, map_config, relative_gt_w2c, tiny_sequence
+from tests.support.tiny_slam import first_frame_map, map_config, relative_gt_w2c, replaced, tiny_sequence
 
 # ------------------------------------------------------------------------------------------------ basin criteria
 
@@ -121,14 +120,14 @@ def _landscapes():
     """(the landscape with the tracker standing still (step size 0), the same with it moving, the reference): frame
     1 tracked on the map of frame 0 from its ground-truth pose, along and over tx x rz. Both with one program (the
     step sizes are traced)."""
-    config = apply_overrides(map_config(), {"tracking.iters": "5"})
+    config = replaced(map_config(), {"tracking.iters": 5})
     w2c_ref = jnp.asarray(relative_gt_w2c()[1], jnp.float32)
     frame = tiny_sequence()[1]
     problem = TrackingProblem(first_frame_map(), frame.color, frame.depth, w2c_ref, tiny_sequence().intrinsics,
                               jnp.bool_(False), jnp.float32(0.0))
     run = functools.partial(pure.landscape, problem, directions=pure.directions(AXES), offsets=jnp.asarray(OFFSETS),
                             plane=True, batch=1)  # one point at a time (as on a CPU): faster to compile
-    still = apply_overrides(config, {"tracking.lr_trans": "0", "tracking.lr_rot": "0"})
+    still = replaced(config, {"tracking.lr_trans": 0.0, "tracking.lr_rot": 0.0})
     return jax.device_get(run(config=still)), jax.device_get(run(config=config)), np.asarray(w2c_ref)
 
 

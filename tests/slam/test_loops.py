@@ -10,9 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsjax.config.text import apply_overrides, config_from_dict, config_to_dict
+from gsjax.config.text import config_from_dict, config_to_dict
 from gsjax.slam.loops import LoopCaps, cap_for, common_caps, counted_scan
 from gsjax.slam.presets import preset, with_cbknn_mode
+from tests.support.tiny_slam import replaced
 
 
 def _descend(lr, count, cap, differentiable, running=None):
@@ -63,17 +64,17 @@ def test_a_config_derives_its_caps_from_its_counts_and_a_pinned_cap_is_kept():
     cpu = preset("cpu")
     assert cpu.caps == LoopCaps(tracking=32, tracking_strided=32, mapping=32, mapping_reselect=True)
     # Derived anew from the counts, whatever the config was built from (no history).
-    assert apply_overrides(preset("tum"), {"tracking.iters": "10"}).caps.tracking == 32
+    assert replaced(preset("tum"), {"tracking.iters": 10}).caps.tracking == 32
     assert config_from_dict(config_to_dict(cpu)) == cpu
     # A sweep pins common caps: kept while they hold the counts, raised where a count outgrows them.
     pinned = cpu.with_caps(dataclasses.replace(cpu.caps, tracking=128))
     assert pinned.caps.tracking == 128 and pinned.caps.pinned
-    assert apply_overrides(pinned, {"tracking.iters": "100"}).caps.tracking == 128
-    assert apply_overrides(pinned, {"tracking.iters": "300"}).caps.tracking == 512
+    assert replaced(pinned, {"tracking.iters": 100}).caps.tracking == 128
+    assert replaced(pinned, {"tracking.iters": 300}).caps.tracking == 512
     # Stacked configs (a batch) derive the caps of their largest counts.
     from gsjax.slam.driver import stack_trees
 
-    a, b = (apply_overrides(cpu, {"mapping.iters": n}) for n in ("20", "40"))
+    a, b = (replaced(cpu, {"mapping.iters": n}) for n in (20, 40))
     common = b.caps
     stacked = stack_trees([a.with_caps(common), b.with_caps(common)])
     assert stacked.caps.mapping == 64
@@ -83,10 +84,10 @@ def test_a_config_draws_noise_only_where_a_level_is_above_zero():
     cpu = preset("cpu")
     assert not cpu.caps.noise
     for field in ("map_means_cm", "map_rgb", "depth_cm", "persistent_means_cm", "persistent_rgb"):
-        assert apply_overrides(cpu, {f"noise.{field}": "0.5"}).caps.noise, field
-    assert not apply_overrides(cpu, {"noise.persistent_frame": "3"}).caps.noise  # a frame is no level
+        assert replaced(cpu, {f"noise.{field}": 0.5}).caps.noise, field
+    assert not replaced(cpu, {"noise.persistent_frame": 3}).caps.noise  # a frame is no level
     # A sweep's common caps hold the noisy configs' draws; the zero-level config runs them (drawing nothing).
-    zero, noisy = (apply_overrides(cpu, {"noise.depth_cm": v}) for v in ("0", "1"))
+    zero, noisy = (replaced(cpu, {"noise.depth_cm": v}) for v in (0.0, 1.0))
     assert common_caps([zero, noisy]).noise and zero.with_caps(common_caps([zero, noisy])).caps.noise
 
 
@@ -97,5 +98,5 @@ def test_cbknn_correction_is_compiled_in_for_paper_only_and_a_common_cap_holds_i
     assert common_caps([off, paper]).smoothing and not common_caps([off, parity]).smoothing
     # caps pinned without the correction are raised when the mode becomes paper
     pinned = off.with_caps(off.caps)
-    assert apply_overrides(pinned, {"cbknn.mode": "paper"}).caps.smoothing
-    assert not apply_overrides(pinned, {"cbknn.mode": "code_parity"}).caps.smoothing
+    assert replaced(pinned, {"cbknn.mode": "paper"}).caps.smoothing
+    assert not replaced(pinned, {"cbknn.mode": "code_parity"}).caps.smoothing

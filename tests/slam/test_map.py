@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from gsjax.camera import se3_inverse
-from gsjax.config.text import apply_overrides
 from gsjax.gaussians import Gaussians, gaussians_from_rgbd
 from gsjax.slam.densify import densify, insert, prune
 from gsjax.slam.losses import mapping_loss
@@ -22,6 +21,7 @@ from tests.support.tiny_slam import (
     initial,
     map_config,
     relative_gt_w2c,
+    replaced,
     run_map_window,
     scene_radius,
     tiny_sequence,
@@ -63,8 +63,8 @@ def test_mapping_reduces_the_loss_of_a_noisy_map_and_leaves_free_slots_alone(str
         active=clean.active & ~free,
     )
     iters = 30 if strided == 0 else 10
-    config = apply_overrides(map_config(), {"mapping.strided_iters": str(strided), "mapping.iters": str(iters),
-                                            "mapping.reselect_every": str(reselect)})
+    config = replaced(map_config(), {"mapping.strided_iters": strided, "mapping.iters": iters,
+                                     "mapping.reselect_every": reselect})
     result = run_map_window(noisy, config=config)
     mapped = result.gaussians
     before, after = window_losses(noisy), window_losses(mapped)
@@ -117,7 +117,7 @@ def pixels_of(means, w2c, intrinsics):
 def test_frame_zero_moves_the_means_with_its_own_step_size():
     """lr_means = 0 freezes the means, except on the frame-0 map (``first``), which uses lr_means_first; the
     other fields' steps are unchanged by ``first``."""
-    config = apply_overrides(map_config(), {"mapping.lr_means": "0", "mapping.lr_means_first": "1e-3"})
+    config = replaced(map_config(), {"mapping.lr_means": 0.0, "mapping.lr_means_first": 1e-3})
     start = first_frame_map()
     later = run_map_window(start, config=config, first_map=False)
     first = run_map_window(start, config=config, first_map=True)
@@ -132,16 +132,16 @@ def test_clamp_rgb_keeps_every_colour_in_the_unit_range_and_only_acts_outside_it
     preset's choice, SplaTAM's is off) projects the colours back after every step, so none leaves the range, and a
     run whose colours stay inside is untouched by it."""
     start = first_frame_map()
-    loose = apply_overrides(map_config(), {"mapping.lr_rgb": "0.2", "mapping.clamp_rgb": "false"})
-    clamped = apply_overrides(loose, {"mapping.clamp_rgb": "true"})
+    loose = replaced(map_config(), {"mapping.lr_rgb": 0.2, "mapping.clamp_rgb": False})
+    clamped = replaced(loose, {"mapping.clamp_rgb": True})
     rgb = lambda result: np.asarray(result.gaussians.rgb)[np.asarray(result.gaussians.active)]  # noqa: E731
     assert (np.abs(rgb(run_map_window(start, config=loose)) - 0.5) > 0.5).any()
     np.testing.assert_array_equal(np.clip(rgb(run_map_window(start, config=clamped)), 0, 1),
                                   rgb(run_map_window(start, config=clamped)))
-    gentle = apply_overrides(map_config(), {"mapping.lr_rgb": "1e-4", "mapping.clamp_rgb": "false"})
+    gentle = replaced(map_config(), {"mapping.lr_rgb": 1e-4, "mapping.clamp_rgb": False})
     plain = run_map_window(start, config=gentle)
     assert 0 <= rgb(plain).min() and rgb(plain).max() <= 1
-    assert_trees_equal(run_map_window(start, config=apply_overrides(gentle, {"mapping.clamp_rgb": "true"})), plain)
+    assert_trees_equal(run_map_window(start, config=replaced(gentle, {"mapping.clamp_rgb": True})), plain)
 
 
 def test_densify_fills_a_hole_exactly_where_silhouette_is_low_and_depth_valid(holed_map):

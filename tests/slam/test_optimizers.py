@@ -9,9 +9,9 @@ import numpy as np
 import optax
 import pytest
 
-from gsjax.config.text import apply_overrides
 from gsjax.slam.optimizers import finite_only_if_loss_is, map_optimizer, nonfinite_steps, pose_optimizer
 from gsjax.slam.presets import preset
+from tests.support.tiny_slam import replaced
 
 
 def reference_adam(grads: list[dict], rates: dict, eps: float, skip=lambda i: False, decay=lambda i: 1.0):
@@ -61,9 +61,9 @@ def _pose_grads(rng, count, nan_at=()):
 @pytest.mark.parametrize("ratio", [1.0, 0.1])
 def test_pose_optimizer_is_adam_with_a_step_per_component_and_exponential_decay(ratio, iters, strided):
     """The step sizes decay over all 8 iterations, strided (tracking.strided_iters) or not."""
-    config = apply_overrides(preset("cpu"), {"tracking.iters": str(iters), "tracking.strided_iters": str(strided),
-                                             "tracking.lr_final_ratio": str(ratio), "tracking.lr_trans": "0.002",
-                                             "tracking.lr_rot": "0.0005"})
+    config = replaced(preset("cpu"), {"tracking.iters": iters, "tracking.strided_iters": strided,
+                                      "tracking.lr_final_ratio": ratio, "tracking.lr_trans": 0.002,
+                                      "tracking.lr_rot": 0.0005})
     grads = _pose_grads(np.random.default_rng(0), 8, nan_at=(3,))
     got, skipped = run(pose_optimizer(config.tracking), grads)
     want, want_skipped = reference_adam(grads, {"rho": 2e-3, "phi": 5e-4}, eps=1e-8,
@@ -77,9 +77,8 @@ def test_pose_optimizer_is_adam_with_a_step_per_component_and_exponential_decay(
 
 @pytest.mark.parametrize("skip_at_prune", [False, True])
 def test_map_optimizer_steps_each_group_and_skips_prune_iterations_when_asked(skip_at_prune):
-    config = apply_overrides(preset("cpu"), {"mapping.iters": "6", "mapping.strided_iters": "0",
-                                             "mapping.prune_iters": "0,4",
-                                             "mapping.skip_step_at_prune": str(skip_at_prune)})
+    config = replaced(preset("cpu"), {"mapping.iters": 6, "mapping.strided_iters": 0, "mapping.prune_iters": (0, 4),
+                                      "mapping.skip_step_at_prune": skip_at_prune})
     cfg = config.mapping
     rng = np.random.default_rng(1)
     grads = [dict(means=rng.normal(size=(4, 3)), rgb=rng.normal(size=(4, 3)), logit_opacities=rng.normal(size=4),
@@ -104,7 +103,7 @@ def test_a_non_finite_loss_skips_the_step_even_with_a_finite_gradient():
 
 def test_the_learning_rates_are_traced_so_a_batch_of_configs_is_one_program():
     config = preset("cpu")
-    doubled = apply_overrides(config, {"tracking.lr_trans": str(2 * config.tracking.lr_trans)})
+    doubled = replaced(config, {"tracking.lr_trans": 2 * config.tracking.lr_trans})
     batch = jax.tree.map(lambda a, b: jnp.stack([jnp.asarray(a), jnp.asarray(b)]), config, doubled)
 
     def first_update(cfg):

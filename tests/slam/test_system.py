@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from gsjax.camera import constant_velocity, orthonormalize
-from gsjax.config.text import apply_overrides
 from gsjax.frame import without_ground_truth
 from gsjax.slam import system
 from tests.support.tiny_slam import (
@@ -27,6 +26,7 @@ from tests.support.tiny_slam import (
     assert_trees_equal,
     frames,
     initial,
+    replaced,
     scan,
     tiny_config,
     tiny_sequence,
@@ -51,7 +51,7 @@ def valid(*flags):
 @functools.lru_cache(maxsize=None)
 def run_first_chunk(mode: str = "off", seed: int = 0, overrides: tuple = ()):
     """run_chunk over frames [0, CHUNK) from the initial state (cached: several tests compare with it)."""
-    config = apply_overrides(tiny_config(mode), dict(overrides))
+    config = replaced(tiny_config(mode), dict(overrides))
     return run_chunk(initial(seed), frames(0, CHUNK), jnp.ones(CHUNK, bool), config, tiny_sequence().intrinsics)
 
 
@@ -103,7 +103,7 @@ def test_frame_zero_initialises_the_map_from_every_valid_pixel_and_becomes_keyfr
 
 # ------------------------------------------------------------------------------------------------------ vmap
 
-SWEPT = (("tracking.lr_trans", "0.004"), ("cbknn.params.alpha", "0.5"), ("mapping.lr_rgb", "0.01"))
+SWEPT = (("tracking.lr_trans", 0.004), ("cbknn.params.alpha", 0.5), ("mapping.lr_rgb", 0.01))
 
 
 def stack(a, b):
@@ -117,7 +117,7 @@ def test_vmap_over_configs_and_states_equals_the_separate_runs(mode):
     """One program over a batch of two configs (traced fields differ) and two initial states (seeds differ); in
     ``paper`` mode CB-KNN acts on keyframe 0's densification and mapping and on the alpha that differs."""
     config_a = tiny_config(mode)
-    config_b = apply_overrides(config_a, dict(SWEPT))
+    config_b = replaced(config_a, dict(SWEPT))
     configs, states = stack(config_a, config_b), stack(initial(0), initial(1))
     batched = jax.vmap(system.run_chunk, in_axes=(0, None, None, 0, None, None))(
         states, frames(0, CHUNK), jnp.ones(CHUNK, bool), configs, tiny_sequence().intrinsics, None

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from gsjax.camera import se3_exp, se3_log
-from gsjax.config.text import apply_overrides
 from gsjax.raster import render
 from gsjax.raster.render import empty_selection
 from gsjax.slam.config import EarlyStop
@@ -19,7 +18,7 @@ from gsjax.slam.losses import TrackingTerms, exposure_gain, rendered_depth, trac
 from gsjax.slam.presets import with_cbknn_mode
 from gsjax.slam.tracking import TrackingProblem, _track_adam, track
 from gsjax.slam.views import render_view
-from tests.support.tiny_slam import first_frame_map, map_config, relative_gt_w2c, tiny_sequence
+from tests.support.tiny_slam import first_frame_map, map_config, relative_gt_w2c, replaced, tiny_sequence
 
 track_jit = jax.jit(track)
 TRUE_FRAME = 2  # the true pose: frame 2's GT pose relative to frame 0 (not the identity)
@@ -30,11 +29,11 @@ PERTURBATIONS = {
 }
 
 
-def tracking_config(optimizer: str, iters: int, mode: str = "off", **overrides: str):
+def tracking_config(optimizer: str, iters: int, mode: str = "off", **overrides: object):
     """``map_config()`` tracking with ``optimizer`` for ``iters`` iterations (and ``overrides``, dotted names with
     dots as double underscores): the caps of ``map_config()``, so one program per optimizer serves every count."""
-    return apply_overrides(with_cbknn_mode(map_config(), mode), {
-        "tracking.optimizer": optimizer, "tracking.iters": str(iters),
+    return replaced(with_cbknn_mode(map_config(), mode), {
+        "tracking.optimizer": optimizer, "tracking.iters": iters,
         **{name.replace("__", "."): value for name, value in overrides.items()}})
 
 
@@ -70,8 +69,8 @@ def test_tracking_recovers_a_known_perturbation_of_a_rendered_map(rendered_scene
     gaussians, color, depth, w2c_true = rendered_scene
     delta = jnp.asarray(PERTURBATIONS[perturbation], jnp.float32)
     w2c_init = se3_exp(delta) @ w2c_true
-    config = tracking_config(optimizer, iters, tracking__strided_iters=str(strided),
-                             tracking__reselect_every=str(reselect))
+    config = tracking_config(optimizer, iters, tracking__strided_iters=strided,
+                             tracking__reselect_every=reselect)
     problem = TrackingProblem(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, False, 0.0)
     result = track_jit(problem, config)
     trans, rot = pose_error(result.w2c, w2c_true)
@@ -112,7 +111,7 @@ def test_strided_iterations_descend_the_full_loss_and_only_full_ones_pick_the_po
     gaussians, color, depth, w2c_true = rendered_scene
     w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
     intrinsics = tiny_sequence().intrinsics
-    config = tracking_config("adam", 1, tracking__strided_iters="40")
+    config = tracking_config("adam", 1, tracking__strided_iters=40)
     problem = TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0)
     objective, color_s, depth_s = strided_problem(problem, config)(3)
     full = tracking_objective(problem, config)
@@ -263,7 +262,7 @@ def one_iteration_tracking(rendered_scene):
     w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["a"], jnp.float32)) @ w2c_true
 
     def run(mode, smooth, **cbknn):
-        config = apply_overrides(tracking_config("adam", 1, mode), {"tracking.best_pose": "post_step"})
+        config = replaced(tracking_config("adam", 1, mode), {"tracking.best_pose": "post_step"})
         config = dataclasses.replace(config, cbknn=dataclasses.replace(config.cbknn, **cbknn))
         problem = TrackingProblem(gaussians, color, depth, w2c_init, tiny_sequence().intrinsics, smooth, 0.3)
         return track_jit(problem, config)
@@ -316,7 +315,7 @@ def test_exposure_match_takes_a_change_of_brightness_for_what_it_is(rendered_sce
     loss = lambda gt, match: float(tracking_loss(view, gt, depth, TrackingTerms(0.5, 1.0, 0.99, False, match)))  # noqa: E731
     assert loss(brighter, True) == pytest.approx(loss(color, False), rel=1e-4)  # the depth term only
     assert loss(brighter, False) > loss(color, False) + 100
-    config = apply_overrides(tracking_config("lm", 10), {"tracking.exposure.match": "true"})
+    config = replaced(tracking_config("lm", 10), {"tracking.exposure.match": True})
     delta = jnp.asarray(PERTURBATIONS["a"], jnp.float32)
     problem = TrackingProblem(gaussians, brighter, depth, se3_exp(delta) @ w2c_true, tiny_sequence().intrinsics,
                               False, 0.0)
@@ -396,9 +395,9 @@ def test_coarse_to_fine_runs_its_levels_first_at_halving_blur_and_keeps_a_full_i
     gaussians, color, depth, w2c_true = rendered_scene
     w2c_init = se3_exp(jnp.asarray(PERTURBATIONS["b"], jnp.float32)) @ w2c_true
     intrinsics = tiny_sequence().intrinsics
-    config = apply_overrides(tracking_config("adam", 20), {  # each iteration chooses its contributors: exact losses
-        "tracking.blur.radius_px": "4", "tracking.coarse.iters": "31", "tracking.coarse.levels": "3",
-        "tracking.coarse.sigma_px": "0.5", "tracking.reselect_every": "1"})
+    config = replaced(tracking_config("adam", 20), {  # each iteration chooses its contributors: exact losses
+        "tracking.blur.radius_px": 4, "tracking.coarse.iters": 31, "tracking.coarse.levels": 3,
+        "tracking.coarse.sigma_px": 0.5, "tracking.reselect_every": 1})
     problem = TrackingProblem(gaussians, color, depth, w2c_init, intrinsics, False, 0.0)
     coarse = coarse_loss(problem, config)
     zero = jnp.zeros(6, jnp.float32)
@@ -430,7 +429,7 @@ def test_smoothing_settings_are_checked_and_scale_with_the_pixel():
         TrackingConfig(coarse=CoarseToFine(iters=10), blur=ImageBlur(radius_px=4), optimizer="lm")
     with pytest.raises(ValueError, match="tracking.blur.sigma_px"):
         ImageBlur(sigma_px=-1.0)
-    config = apply_overrides(map_config(), {"tracking.blur.sigma_px": "2", "tracking.coarse.sigma_px": "1",
-                                            "tracking.blur.radius_px": "6"})
+    config = replaced(map_config(), {"tracking.blur.sigma_px": 2.0, "tracking.coarse.sigma_px": 1.0,
+                                     "tracking.blur.radius_px": 6})
     half = at_width(config, 40, 80).tracking
     assert (float(half.blur.sigma_px), float(half.coarse.sigma_px), half.blur.radius_px) == (1.0, 0.5, 6)

@@ -9,14 +9,17 @@ program compiles once.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from collections.abc import Mapping
+from typing import Any, TypeVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from gsjax.app.session.runner import RunOptions
-from gsjax.config.text import apply_overrides
+from gsjax.config.fields import kind_of, settings_fields, spec_of
 from gsjax.data.sequence import Sequence
 from gsjax.data.synthetic import SyntheticConfig, synthetic_sequence
 from gsjax.frame import Frame, stack_frames, to_device
@@ -32,13 +35,50 @@ CAPACITY = 2 * WIDTH * HEIGHT  # the runner's default capacity
 # Tiny iteration counts: the scans over iterations compile to the same program whatever the count. No strided
 # iterations (their renders would add to every tiny program's compile time; test_slam_tracking and test_slam_map
 # test them).
-TINY_OVERRIDES = {"tracking.iters": "3", "tracking.strided_iters": "0", "mapping.iters": "2",
-                  "mapping.strided_iters": "0"}
+TINY_COUNTS = {"tracking.iters": 3, "tracking.strided_iters": 0, "mapping.iters": 2, "mapping.strided_iters": 0}
+TINY_OVERRIDES = {name: str(value) for name, value in TINY_COUNTS.items()}  # the same, as command-line text
 
 
 # `gsjax run` / `gsjax sweep` flags for the tiny run (after --out): the synthetic room at 40x30, FRAMES frames.
 TINY_RUN = ["--dataset", "synthetic", "--downscale", "4", "--max-frames", str(FRAMES), "--chunk", str(CHUNK),
             "--no-progress"] + [token for name, value in TINY_OVERRIDES.items() for token in (f"--{name}", value)]
+
+
+_Config = TypeVar("_Config")
+_KINDS = {"int": int, "float": float, "bool": bool, "str": str, "tuple": tuple}
+
+
+def replaced(config: _Config, changes: Mapping[str, Any]) -> _Config:
+    """``config`` with fields set by dotted name, e.g. ``{"tracking.iters": 3, "cbknn.params.alpha": 0.3}``:
+    ``dataclasses.replace`` section by section, in order (as the command line's overrides set them, from typed values
+    instead of text). Each value must have its field's declared type (an int field an int, a float field a float),
+    the type the command line's codec gives it, so that the config is equal to the one the command line builds and
+    compiles to the same program.
+
+    Raises:
+      AttributeError: naming the path, for an unknown field (or a derived one, such as ``caps``).
+      TypeError: naming the path, for a value of another type, or for a section given as a value.
+    """
+    for path, value in changes.items():
+        config = _replaced_at(config, path.split("."), value, path)
+    return config
+
+
+def _replaced_at(obj, names: list[str], value, path: str):
+    fields = {f.name: f for f in settings_fields(obj)} if dataclasses.is_dataclass(obj) else {}
+    if names[0] not in fields:
+        raise AttributeError(f"{path}: {type(obj).__name__} has no field {names[0]!r} (fields: {sorted(fields)})")
+    field = fields[names[0]]
+    if len(names) > 1:
+        value = _replaced_at(getattr(obj, names[0]), names[1:], value, path)
+    elif spec_of(field) is None:
+        raise TypeError(f"{path}: is a config section (set its fields, {path}.NAME)")
+    else:
+        kind = kind_of(field)
+        expected = _KINDS.get(kind.split(" |")[0])
+        if not (type(value) is expected or (value is None and "None" in kind) or expected is None):
+            raise TypeError(f"{path}: {kind} field, got {value!r} ({type(value).__name__})")
+    return dataclasses.replace(obj, **{names[0]: value})
 
 
 def run_options(out, **changes) -> RunOptions:
@@ -53,10 +93,10 @@ def tiny_sequence(num_frames: int = FRAMES) -> Sequence:
 
 
 def tiny_config(mode: str = "off") -> SlamConfig:
-    """The ``cpu`` preset at the tiny width with CB-KNN ``mode`` and tiny iteration counts, built exactly as ``gsjax
-    run --preset cpu --cbknn MODE`` with :data:`TINY_OVERRIDES` builds it for 40x30 frames (so the CLI
-    tests reuse the compiled scan and record this very config)."""
-    return apply_overrides(with_cbknn_mode(preset("cpu", WIDTH), mode), TINY_OVERRIDES)
+    """The ``cpu`` preset at the tiny width with CB-KNN ``mode`` and tiny iteration counts (:data:`TINY_COUNTS`):
+    the config ``gsjax run --preset cpu --cbknn MODE`` with :data:`TINY_OVERRIDES` builds for 40x30 frames (so the
+    CLI tests reuse the compiled scan and record this very config; test_driver checks that they are equal)."""
+    return replaced(with_cbknn_mode(preset("cpu", WIDTH), mode), TINY_COUNTS)
 
 
 def frames(begin: int, end: int, num_frames: int = FRAMES) -> Frame:
@@ -129,8 +169,8 @@ MAP_CAPS = LoopCaps(tracking=64, tracking_strided=64, mapping=32, mapping_stride
 def map_config() -> SlamConfig:
     """The ``cpu`` preset (normalised-depth tracking) with 30 mapping iterations, every iteration on every pixel,
     compiled for :data:`MAP_CAPS`."""
-    return apply_overrides(preset("cpu"), {"mapping.iters": "30", "mapping.strided_iters": "0",
-                                           "tracking.strided_iters": "0"}).with_caps(MAP_CAPS)
+    return replaced(preset("cpu"), {"mapping.iters": 30, "mapping.strided_iters": 0,
+                                    "tracking.strided_iters": 0}).with_caps(MAP_CAPS)
 
 
 def first_frame_map():
