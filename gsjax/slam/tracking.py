@@ -106,6 +106,29 @@ class TrackingObjective(NamedTuple):
     select: Callable
 
 
+class Stage(NamedTuple):
+    """One stage of tracking (coarse levels, strided grids, every pixel): what it minimises, for how many iterations,
+    and whether those compete for the returned pose. Both trackers run a list of stages in order, each from the
+    previous one's pose (:func:`tracking_stages`).
+
+    Attributes:
+      loss: ``loss(delta, it, selection)`` -> [] at iteration ``it`` (counted over all stages; may be traced), for
+        delta [6] and the selection in use (None: every render chooses its contributors): the Adam tracker's.
+      residuals: ``residuals(delta)`` -> [R], the masked residuals in least squares (the LM tracker's), or None.
+      iters: the stage's iteration count (may be traced).
+      cap: the static cap of its loop (:class:`gsjax.slam.loops.LoopCaps`).
+      competes_for_best: whether its iterations compete for the returned pose (only those on every pixel at the
+        loss's own blur: the strided and blurred losses do not compare with them); the early stop
+        (``tracking.stop``) watches that stage alone.
+    """
+
+    loss: Callable
+    residuals: Callable | None
+    iters: Any
+    cap: int
+    competes_for_best: bool
+
+
 def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> TrackingObjective:
     """What the tracker minimises for ``problem``: its renders and loss around ``problem.w2c_init``.
 
@@ -160,14 +183,46 @@ def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
     if config.tracking.optimizer == "lm":
         # LM's Jacobian is forward mode, which the Pallas compositing (a custom_vjp) does not have.
         config = dataclasses.replace(config, raster=config.raster.for_forward_mode())
-    objective = tracking_objective(problem, config)
-    strided = strided_problem(problem, config) if caps.tracking_strided else None
-    if config.tracking.optimizer == "lm":
-        return _track_lm((objective.view_at, problem.color, problem.depth), objective.loss, problem.w2c_init,
-                         config.tracking, caps, objective.lambda_color, None if strided is None else strided(0))
-    return _track_adam(objective.loss, problem.w2c_init, config.tracking, caps,
-                       None if strided is None else lambda delta, phase, sel: strided(phase)[0].loss(delta, sel),
-                       coarse_loss(problem, config) if caps.tracking_coarse else None, objective.select)
+        return _track_lm(tracking_stages(problem, config, caps), problem.w2c_init)
+    return _track_adam(tracking_stages(problem, config, caps), problem.w2c_init, config.tracking,
+                       caps.differentiable, tracking_objective(problem, config).select)
+
+
+def tracking_stages(problem: TrackingProblem, config: SlamConfig, caps: LoopCaps) -> list[Stage]:
+    """The stages of tracking ``problem``, in order: the coarse levels (``tracking.coarse.iters``, :func:`coarse_loss`),
+    the strided grids (``tracking.strided_iters``, :func:`strided_problem`; the grid of phase ``it`` % 4 at
+    iteration ``it``, phase 0 for LM, whose residuals are blurred at half the std: its pixels are twice as far
+    apart), each where its cap in ``caps`` is not 0, then every pixel (``tracking.iters``), the stage that competes
+    for the pose.
+
+    Args:
+      problem: the frame's tracking problem.
+      config: the SLAM config.
+      caps: the loops' static caps (:func:`gsjax.slam.loops.loop_caps` of ``config``).
+
+    Returns:
+      the stages (:class:`Stage`), in the order they run.
+    """
+    cfg = config.tracking
+    full = tracking_objective(problem, config)
+
+    def residuals(objective: TrackingObjective, color, depth, blur_px):
+        return lambda delta: tracking_residuals(objective.view_at(delta), color, depth,
+                                                TrackingTerms.of(cfg, full.lambda_color, blur_px))
+
+    stages = []
+    if caps.tracking_coarse:
+        stages.append(Stage(coarse_loss(problem, config), None, cfg.coarse.iters, caps.tracking_coarse, False))
+    if caps.tracking_strided:
+        on_grid = strided_problem(problem, config)
+        lm = cfg.optimizer == "lm"  # (static) LM solves on grid 0 only: built here, outside its loop
+        stages.append(Stage(lambda delta, it, selection: on_grid(it % 4)[0].loss(delta, selection),
+                            residuals(*on_grid(0), cfg.blur.sigma_px / 2) if lm else None,
+                            cfg.strided_iters, caps.tracking_strided, False))
+    stages.append(Stage(lambda delta, it, selection: full.loss(delta, selection),
+                        residuals(full, problem.color, problem.depth, cfg.blur.sigma_px), cfg.iters, caps.tracking,
+                        True))
+    return stages
 
 
 def coarse_level(it: jax.Array, coarse: CoarseToFine) -> jax.Array:
@@ -279,40 +334,34 @@ class AdamCarry(NamedTuple):
     selection: Any
 
 
-def _track_adam(loss_fn, w2c_init, cfg: TrackingConfig, caps: LoopCaps, strided_loss_fn=None, coarse=None,
+def _track_adam(stages: list[Stage], w2c_init, cfg: TrackingConfig, differentiable: bool = False,
                 select=None) -> TrackResult:
-    """Adam on ``loss_fn`` (delta [6], selection -> []) for ``tracking.iters`` iterations, after
-    ``tracking.strided_iters`` on ``strided_loss_fn(delta, phase, selection)`` when given (phase = the iteration
-    number mod 4: each of the four strided grids in turn), after ``tracking.coarse.iters`` on ``coarse(delta, it,
-    selection)`` when given (``it`` counted from the first coarse iteration; :func:`coarse_loss`). Only full iterations
-    compete for the best pose: strided and blurred losses do not compare with them. ``select(delta)`` chooses the
-    contributor slots at iterations 0, R, 2R, ... (R = ``tracking.reselect_every``) and the iterations in between
-    composite those (None: every render chooses its own). Each stage is a :func:`gsjax.slam.loops.counted_scan` within
-    its cap in ``caps``."""
+    """Adam through ``stages`` in order, one optimiser state carried through them (:class:`Stage`: each a
+    :func:`gsjax.slam.loops.counted_scan` within its cap; after a stage that does not compete for the pose, the
+    best pose and the progress start again). ``select(delta)`` chooses the contributor slots at iterations 0, R, 2R,
+    ... (R = ``tracking.reselect_every``) and the iterations in between composite those (None: every render chooses
+    its own). ``differentiable``: the loops take the form reverse mode passes through."""
     optimizer = pose_optimizer(cfg)
     post_step = choice_is(cfg.best_pose, "post_step", BEST_POSE)
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}
 
-    def iteration(loss_fn, carry: AdamCarry) -> AdamCarry:
+    def iteration(loss, carry: AdamCarry) -> AdamCarry:
         it, delta, selection = carry.it, carry.delta, carry.selection
         if select is not None:
             selection = jax.lax.cond(it % cfg.reselect_every == 0, lambda: select(tangent(delta)), lambda: selection)
-        loss, grad = jax.value_and_grad(lambda d: loss_fn(tangent(d), it, selection))(delta)
-        updates, opt_state = optimizer.update(finite_only_if_loss_is(loss, grad), carry.opt_state)
+        value, grad = jax.value_and_grad(lambda d: loss(tangent(d), it, selection))(delta)
+        updates, opt_state = optimizer.update(finite_only_if_loss_is(value, grad), carry.opt_state)
         new_delta = optax.apply_updates(delta, updates)
-        better = jnp.isfinite(loss) & (loss < carry.best_loss)
+        better = jnp.isfinite(value) & (value < carry.best_loss)
         # pre_step keeps the pose whose loss this is; post_step (SplaTAM's off-by-one) the pose after its step.
         candidate = jax.tree.map(lambda old, new: jnp.where(post_step, new, old), delta, new_delta)
         best_delta = jax.tree.map(lambda c, b: jnp.where(better, c, b), candidate, carry.best_delta)
         # Progress: the loss fell by stop.rtol below the loss of the last progress (the first finite loss is).
-        progress = jnp.isfinite(loss) & (loss < carry.progress_loss * (1.0 - cfg.stop.rtol))
-        return AdamCarry(it + 1, new_delta, opt_state, best_delta, jnp.where(better, loss, carry.best_loss),
-                         jnp.where(progress, it, carry.progress_at), jnp.where(progress, loss, carry.progress_loss),
+        progress = jnp.isfinite(value) & (value < carry.progress_loss * (1.0 - cfg.stop.rtol))
+        return AdamCarry(it + 1, new_delta, opt_state, best_delta, jnp.where(better, value, carry.best_loss),
+                         jnp.where(progress, it, carry.progress_at), jnp.where(progress, value, carry.progress_loss),
                          selection)
-
-    def stage(loss_fn, init, count, cap, running=None):
-        return counted_scan(lambda _, carry: iteration(loss_fn, carry), init, count, cap, running, caps.differentiable)
 
     def restart(final: AdamCarry) -> AdamCarry:  # the next stage goes on from this one's pose, state, selection
         return final._replace(best_delta=final.delta, best_loss=inf, progress_at=final.it, progress_loss=inf)
@@ -321,19 +370,21 @@ def _track_adam(loss_fn, w2c_init, cfg: TrackingConfig, caps: LoopCaps, strided_
     selection0 = None
     if select is not None:  # (its trace is the selection's first, which the loop's calls then reuse)
         selection0 = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(select, tangent(delta0)))
-    init = AdamCarry(jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf, selection0)
-    if coarse is not None:
-        init = restart(stage(coarse, init, cfg.coarse.iters, caps.tracking_coarse))
-    if strided_loss_fn is not None:
-        init = restart(stage(lambda d, it, sel: strided_loss_fn(d, it % 4, sel), init, cfg.strided_iters,
-                             caps.tracking_strided))
-    end = init.it + cfg.iters
+    carry = AdamCarry(jnp.int32(0), delta0, optimizer.init(delta0), delta0, inf, jnp.int32(0), inf, selection0)
 
-    def running(carry: AdamCarry):  # the early stop: no progress for stop.window iterations (0: never)
-        return (carry.it < end) & ((cfg.stop.window == 0) | (carry.it - carry.progress_at <= cfg.stop.window))
+    def run(stage: Stage, carry: AdamCarry) -> AdamCarry:
+        end = carry.it + stage.iters
 
-    final = stage(lambda d, it, sel: loss_fn(d) if sel is None else loss_fn(d, sel), init, cfg.iters, caps.tracking,
-                  running)
+        def running(c: AdamCarry):  # the early stop (the competing stage's): no progress for stop.window iterations
+            return (c.it < end) & ((cfg.stop.window == 0) | (c.it - c.progress_at <= cfg.stop.window))
+
+        final = counted_scan(lambda _, c: iteration(stage.loss, c), carry, stage.iters, stage.cap,
+                             running if stage.competes_for_best else None, differentiable)
+        return final if stage.competes_for_best else restart(final)
+
+    for stage in stages:
+        carry = run(stage, carry)
+    final = carry
     return TrackResult(perturb_left(tangent(final.best_delta), w2c_init), final.best_loss,
                        nonfinite_steps(final.opt_state), final.it)
 
@@ -368,40 +419,35 @@ def _step_limited() -> type:
     return StepLimited
 
 
-def _track_lm(full, loss_fn, w2c_init, cfg: TrackingConfig, caps: LoopCaps, lambda_color,
-              strided=None) -> TrackResult:
-    """Levenberg-Marquardt on ``full`` = (view_at, colour, depth) from the solution of ``strided`` (the same on
-    every other pixel, at most ``tracking.strided_iters`` steps) when given; at most ``tracking.iters`` steps on
-    every pixel (each solve's loop is bounded by its cap in ``caps``)."""
+def _track_lm(stages: list[Stage], w2c_init) -> TrackResult:
+    """Levenberg-Marquardt on each stage's residuals in order (at most its ``iters`` steps, within its cap), each
+    from the previous one's solution where that is finite (else from the start); the last stage's solution is kept
+    where its loss beats the start's."""
     import optimistix as optx
 
     inner: Any = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)  # generic over types optimistix leaves open
 
-    def solve(problem, start, steps, cap, blur_px):
-        view_at, color, depth = problem
-
-        def residuals(delta, _):
-            return tracking_residuals(view_at(delta), color, depth, TrackingTerms.of(cfg, lambda_color, blur_px))
-
-        solver: Any = _step_limited()(inner, jnp.asarray(steps, jnp.int32), inner.rtol, inner.atol, inner.norm)
-        return optx.least_squares(residuals, solver, start, max_steps=cap, throw=False)
+    def solve(stage: Stage, start):
+        assert stage.residuals is not None
+        solver: Any = _step_limited()(inner, jnp.asarray(stage.iters, jnp.int32), inner.rtol, inner.atol, inner.norm)
+        return optx.least_squares(lambda delta, _: stage.residuals(delta), solver, start, max_steps=stage.cap,
+                                  throw=False)
 
     delta0 = jnp.zeros(6, jnp.float32)
-    start, strided_steps = delta0, jnp.int32(0)
-    if strided is not None:
-        sigma_strided = cfg.blur.sigma_px / 2  # the strided grid's pixels are twice as far apart
-        first = solve((strided[0].view_at, *strided[1:]), delta0, cfg.strided_iters, caps.tracking_strided,
-                      sigma_strided)
-        start = jnp.where(jnp.all(jnp.isfinite(first.value)), first.value, delta0)
-        strided_steps = jnp.asarray(first.stats["num_steps"], jnp.int32)
-    solution = solve(full, start, cfg.iters, caps.tracking, cfg.blur.sigma_px)
+    start, steps = delta0, jnp.int32(0)
+    *before, final = stages
+    for stage in before:
+        first = solve(stage, start)
+        start = jnp.where(jnp.all(jnp.isfinite(first.value)), first.value, start)
+        steps = steps + jnp.asarray(first.stats["num_steps"], jnp.int32)
+    solution = solve(final, start)
     delta = solution.value
-    start_loss, end_loss = loss_fn(delta0), loss_fn(delta)
+    start_loss, end_loss = final.loss(delta0, 0, None), final.loss(delta, 0, None)
     usable = jnp.all(jnp.isfinite(delta)) & jnp.isfinite(end_loss)
     better = usable & (end_loss < start_loss)
     best = jnp.where(better, delta, delta0)
     return TrackResult(perturb_left(best, w2c_init), jnp.where(better, end_loss, start_loss),
-                       (~usable).astype(jnp.int32), strided_steps + jnp.asarray(solution.stats["num_steps"], jnp.int32))
+                       (~usable).astype(jnp.int32), steps + jnp.asarray(solution.stats["num_steps"], jnp.int32))
 
 
 class GuardedTrack(NamedTuple):

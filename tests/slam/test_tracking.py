@@ -16,7 +16,7 @@ from gsjax.raster.render import empty_selection
 from gsjax.slam.config import EarlyStop
 from gsjax.slam.losses import TrackingTerms, exposure_gain, rendered_depth, tracking_loss, tracking_mask
 from gsjax.slam.presets import with_cbknn_mode
-from gsjax.slam.tracking import TrackingProblem, _track_adam, track
+from gsjax.slam.tracking import Stage, TrackingProblem, _track_adam, track
 from gsjax.slam.views import render_view
 from tests.support.tiny_slam import first_frame_map, map_config, relative_gt_w2c, replaced, tiny_sequence
 
@@ -173,7 +173,9 @@ def test_reselect_every_chooses_contributors_at_every_rth_iteration_across_stage
 
     @jax.jit
     def run(w2c, tracking):
-        return _track_adam(loss, w2c, tracking, caps, lambda d, phase, sel: loss(d, sel), None, select)
+        stages = [Stage(lambda d, it, sel: loss(d, sel), None, tracking.strided_iters, caps.tracking_strided, False),
+                  Stage(lambda d, it, sel: loss(d, sel), None, tracking.iters, caps.tracking, True)]
+        return _track_adam(stages, w2c, tracking, select=select)
 
     base = dataclasses.replace(config.tracking, iters=9, strided_iters=3)
     caps = dataclasses.replace(config, tracking=base).caps
@@ -200,7 +202,8 @@ def test_adam_skips_non_finite_iterations_and_keeps_the_best_finite_pose():
         return jnp.where(delta[0] > 0.011, jnp.nan, jnp.sum((delta - target) ** 2))
 
     w2c_init = jnp.asarray(relative_gt_w2c()[TRUE_FRAME], jnp.float32)
-    result = jax.jit(lambda w: _track_adam(loss_fn, w, config.tracking, config.caps))(w2c_init)
+    stages = [Stage(lambda d, it, sel: loss_fn(d), None, config.tracking.iters, config.caps.tracking, True)]
+    result = jax.jit(lambda w: _track_adam(stages, w, config.tracking))(w2c_init)
     best = np.asarray(se3_log(result.w2c @ jnp.linalg.inv(w2c_init)))
     # Adam's first steps have size lr: rho_x = 0.002 k after k steps, so the losses at k = 0..5 are finite and the
     # loss after the 6th step (rho_x = 0.012) is not: 6 finite iterations, 14 skipped, best at k = 5.
@@ -221,7 +224,8 @@ def test_early_stop_window_stops_once_the_loss_stops_falling_and_zero_runs_every
 
     base = dataclasses.replace(config.tracking, iters=60, lr_trans=2e-3)
     caps = dataclasses.replace(config, tracking=base).caps
-    run = jax.jit(lambda w, tracking: _track_adam(loss_fn, w, tracking, caps))
+    run = jax.jit(lambda w, tracking: _track_adam(
+        [Stage(lambda d, it, sel: loss_fn(d), None, tracking.iters, caps.tracking, True)], w, tracking))
 
     def tracked(window):
         return run(jnp.eye(4, dtype=jnp.float32), dataclasses.replace(base, stop=EarlyStop(window=window, rtol=1e-3)))
