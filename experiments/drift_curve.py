@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.camera import invert_rigid, rotation_angle_rad
+from gsjax.camera import rotation_angle_np, se3_inverse_np
 from gsjax.io.run_folder import read_run
 from gsjax.report.figures import Series, series_png
 
@@ -36,9 +36,9 @@ def rows_of(path: Path) -> list[dict]:
     if found is None:
         return []
     gt = run.ground_truth_in_map()[1]  # the GT poses of found.frames, in order
-    steps = invert_rigid(gt[:-1]) @ gt[1:]
+    steps = se3_inverse_np(gt[:-1]) @ gt[1:]
     gt_cm = np.concatenate([[0.0], 100 * np.linalg.norm(steps[:, :3, 3], axis=1)])
-    gt_deg = np.concatenate([[0.0], np.degrees(rotation_angle_rad(steps[:, :3, :3]))])
+    gt_deg = np.concatenate([[0.0], np.degrees(rotation_angle_np(steps[:, :3, :3]))])
     per_frame = run.metrics.per_frame
     series = lambda name, t: per_frame[name][t] if name in per_frame else None  # noqa: E731
     change = np.concatenate([[0.0], np.diff(found.error_m)])

@@ -273,34 +273,34 @@ def quaternion_to_rotation(quat: jax.Array) -> jax.Array:
 
 
 def so3_log(rotation: jax.Array) -> jax.Array:
-    """Axis-angle vector of a rotation matrix, the inverse of :func:`so3_exp`; robust near 0 and pi (quaternions).
+    """Axis-angle vectors of rotation matrices, the inverse of :func:`so3_exp`; robust near 0 and pi (quaternions).
 
     Args:
-      rotation: [3, 3] rotation matrix (one, not batched).
+      rotation: [..., 3, 3] rotation matrices.
 
     Returns:
-      [3] axis-angle (rad), angle in [0, pi].
+      [..., 3] axis-angle (rad), angle in [0, pi].
     """
     q = rotation_to_quaternion(rotation)
-    w, v = q[0], q[1:]
-    vnorm_sq = jnp.sum(v * v)
+    w, v = q[..., 0], q[..., 1:]
+    vnorm_sq = jnp.sum(v * v, axis=-1)
     small = vnorm_sq < 1e-12
     vnorm = jnp.sqrt(jnp.where(small, 1.0, vnorm_sq))
     # angle = 2 atan2(|v|, w); phi = angle * v / |v|, and -> 2 v / w as |v| -> 0.
     scale = jnp.where(small, 2.0 / w, 2.0 * jnp.arctan2(vnorm, w) / vnorm)
-    return scale * v
+    return scale[..., None] * v
 
 
 def rotation_angle(rotation: jax.Array) -> jax.Array:
-    """Rotation angle of a rotation matrix.
+    """Rotation angles of rotation matrices (:func:`rotation_angle_np` in numpy float64).
 
     Args:
-      rotation: [3, 3] rotation matrix (one, not batched).
+      rotation: [..., 3, 3] rotation matrices.
 
     Returns:
-      [] angle (rad), in [0, pi].
+      [...] angles (rad), in [0, pi].
     """
-    return jnp.linalg.norm(so3_log(rotation))
+    return jnp.linalg.norm(so3_log(rotation), axis=-1)
 
 
 def se3_exp(delta: jax.Array) -> jax.Array:
@@ -340,31 +340,32 @@ def se3_log(transform: jax.Array) -> jax.Array:
 
 
 def from_rotation_translation(rotation: jax.Array, translation: jax.Array) -> jax.Array:
-    """Homogeneous transform ``[[R, t], [0, 1]]``.
+    """Homogeneous transforms ``[[R, t], [0, 1]]``.
 
     Args:
-      rotation: [3, 3] rotation R.
-      translation: [3] translation t (m).
+      rotation: [..., 3, 3] rotations R.
+      translation: [..., 3] translations t (m).
 
     Returns:
-      [4, 4] transform.
+      [..., 4, 4] transforms.
     """
-    top = jnp.concatenate([rotation, translation[:, None]], axis=1)
-    bottom = jnp.array([[0.0, 0.0, 0.0, 1.0]], dtype=top.dtype)
-    return jnp.concatenate([top, bottom], axis=0)
+    top = jnp.concatenate([rotation, translation[..., :, None]], axis=-1)
+    bottom = jnp.broadcast_to(jnp.array([0.0, 0.0, 0.0, 1.0], dtype=top.dtype), (*top.shape[:-2], 1, 4))
+    return jnp.concatenate([top, bottom], axis=-2)
 
 
 def se3_inverse(transform: jax.Array) -> jax.Array:
-    """Inverse of a rigid transform, ``[[R^T, -R^T t], [0, 1]]`` (exact for rigid inputs).
+    """Inverses of rigid transforms, ``[[R^T, -R^T t], [0, 1]]`` (exact for rigid inputs; :func:`se3_inverse_np` in
+    numpy float64).
 
     Args:
-      transform: [4, 4] rigid transform.
+      transform: [..., 4, 4] rigid transforms.
 
     Returns:
-      [4, 4] its inverse (a w2c for a c2w and vice versa).
+      [..., 4, 4] their inverses (a w2c for a c2w and vice versa).
     """
-    rot_t = transform[:3, :3].T
-    return from_rotation_translation(rot_t, -rot_t @ transform[:3, 3])
+    rot_t = jnp.swapaxes(transform[..., :3, :3], -1, -2)
+    return from_rotation_translation(rot_t, -(rot_t @ transform[..., :3, 3, None])[..., 0])
 
 
 def perturb_left(delta: jax.Array, transform: jax.Array) -> jax.Array:
@@ -444,7 +445,7 @@ def rigidity_error(transform: jax.Array | np.ndarray) -> jax.Array | np.ndarray:
 # --------------------------------------------------- the same conventions in numpy float64 (host side: files, eval)
 
 
-def rotation_to_quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
+def rotation_to_quaternion_np(rotation: np.ndarray) -> np.ndarray:
     """Unit quaternions of rotation matrices in numpy float64: the formula of :func:`rotation_to_quaternion`.
 
     Args:
@@ -456,7 +457,7 @@ def rotation_to_quaternion_wxyz(rotation: np.ndarray) -> np.ndarray:
     return _shepperd(np.asarray(rotation, np.float64), np)
 
 
-def quaternion_wxyz_to_rotation(quat: np.ndarray) -> np.ndarray:
+def quaternion_to_rotation_np(quat: np.ndarray) -> np.ndarray:
     """Rotation matrices of unit quaternions in numpy float64: :func:`quaternion_to_rotation` without its
     normalisation (the readers normalise what they read).
 
@@ -469,8 +470,8 @@ def quaternion_wxyz_to_rotation(quat: np.ndarray) -> np.ndarray:
     return _quaternion_matrix(np.asarray(quat, np.float64), np)
 
 
-def invert_rigid(transform: np.ndarray) -> np.ndarray:
-    """Inverse of rigid transforms via ``R^T`` in numpy float64: :func:`se3_inverse` batched.
+def se3_inverse_np(transform: np.ndarray) -> np.ndarray:
+    """Inverses of rigid transforms via ``R^T`` in numpy float64: :func:`se3_inverse`'s formula.
 
     Args:
       transform: [..., 4, 4] rigid transforms.
@@ -490,7 +491,7 @@ def invert_rigid(transform: np.ndarray) -> np.ndarray:
 def invert_transform(transform: np.ndarray) -> np.ndarray:
     """Exact inverse of invertible transforms in numpy float64, for poses rigid only to rounding (a float32 pose
     from the core, a ground-truth matrix read from a file): files written from a pose (``trajectory.txt``) keep the
-    digits of its exact inverse. :func:`invert_rigid` (``R^T``) inverts the nearest rigid transform, equal to this
+    digits of its exact inverse. :func:`se3_inverse_np` (``R^T``) inverts the nearest rigid transform, equal to this
     to within the pose's own orthonormality error (about 1e-7 for float32).
 
     Args:
@@ -502,7 +503,7 @@ def invert_transform(transform: np.ndarray) -> np.ndarray:
     return np.linalg.inv(np.asarray(transform, np.float64))
 
 
-def rotation_angle_rad(rotation: np.ndarray) -> np.ndarray:
+def rotation_angle_np(rotation: np.ndarray) -> np.ndarray:
     """Rotation angle of rotation matrices in numpy float64; accurate at small angles (atan2 of the sine from the
     skew part and the cosine from the trace).
 

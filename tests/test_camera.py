@@ -22,13 +22,15 @@ from gsjax.camera import (
     perturb_left,
     project_points,
     quaternion_to_rotation,
-    quaternion_wxyz_to_rotation,
+    quaternion_to_rotation_np,
     rigidity_error,
     rotation_angle,
+    rotation_angle_np,
     rotation_to_quaternion,
-    rotation_to_quaternion_wxyz,
+    rotation_to_quaternion_np,
     se3_exp,
     se3_inverse,
+    se3_inverse_np,
     se3_log,
     so3_exp,
     so3_log,
@@ -330,10 +332,34 @@ def test_the_numpy_float64_twins_give_the_jnp_functions_values():
     q = rng.standard_normal((200, 4))
     q[:4] = [[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [1e-9, 0.6, 0.8, 0]]
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    rot = quaternion_wxyz_to_rotation(q)
+    rot = quaternion_to_rotation_np(q)
     np.testing.assert_allclose(rot, np.asarray(quaternion_to_rotation(jnp.asarray(q, jnp.float32))), atol=1e-6)
-    np.testing.assert_allclose(rotation_to_quaternion_wxyz(rot),
+    np.testing.assert_allclose(rotation_to_quaternion_np(rot),
                                np.asarray(rotation_to_quaternion(jnp.asarray(rot, jnp.float32))), atol=1e-6)
-    back = rotation_to_quaternion_wxyz(rot)
-    np.testing.assert_allclose(quaternion_wxyz_to_rotation(back), rot, atol=1e-14)
+    back = rotation_to_quaternion_np(rot)
+    np.testing.assert_allclose(quaternion_to_rotation_np(back), rot, atol=1e-14)
     assert np.all(back[:, 0] >= 0)
+
+
+def test_the_jnp_and_numpy_twins_take_the_same_batches_and_agree():
+    """Each jnp function and its numpy float64 twin (``_np``) take [..., ] batches alike (here [2, 3, ...], angles
+    from 0 to near pi) and agree to float32; the batched jnp result is the per-element one."""
+    rng = np.random.default_rng(3)
+    axes = rng.normal(size=(2, 3, 3))
+    angles = np.array([[0.0, 1e-4, 0.5], [1.5, 3.0, np.pi - 1e-3]])
+    phi = axes / np.linalg.norm(axes, axis=-1, keepdims=True) * angles[..., None]
+    rotations = np.asarray(v_so3_exp(jnp.asarray(phi.reshape(-1, 3), jnp.float32))).reshape(2, 3, 3, 3)
+    transforms = np.tile(np.eye(4, dtype=np.float32), (2, 3, 1, 1))
+    transforms[..., :3, :3], transforms[..., :3, 3] = rotations, rng.normal(size=(2, 3, 3))
+    pairs = [(rotation_angle, rotation_angle_np, rotations), (se3_inverse, se3_inverse_np, transforms),
+             (rotation_to_quaternion, rotation_to_quaternion_np, rotations)]
+    for jnp_twin, np_twin, batch in pairs:
+        got, want = np.asarray(jnp_twin(jnp.asarray(batch))), np_twin(batch)
+        assert got.shape == want.shape and got.shape[:2] == (2, 3)
+        np.testing.assert_allclose(got, want, atol=2e-5, err_msg=jnp_twin.__name__)
+        one = np.asarray(jnp_twin(jnp.asarray(batch[1, 2])))
+        np.testing.assert_array_equal(got[1, 2], one, err_msg=jnp_twin.__name__)
+    quats = rotation_to_quaternion_np(rotations)
+    np.testing.assert_allclose(np.asarray(quaternion_to_rotation(jnp.asarray(quats, jnp.float32))),
+                               quaternion_to_rotation_np(quats), atol=2e-6)
+    np.testing.assert_allclose(np.asarray(so3_log(jnp.asarray(rotations))), phi, atol=5e-4)

@@ -96,7 +96,7 @@ def test_no_module_is_over_400_lines():
 
 
 def test_poses_are_inverted_through_gsjax_camera():
-    """No matrix inverse of a pose outside ``gsjax.camera`` (``invert_transform``, ``invert_rigid``, ``se3_inverse``
+    """No matrix inverse of a pose outside ``gsjax.camera`` (``invert_transform``, ``se3_inverse_np``, ``se3_inverse``
     say which inverse is meant)."""
     offenders = [name for name, path in modules().items()
                  if name != "gsjax.camera" and "linalg.inv(" in path.read_text()]

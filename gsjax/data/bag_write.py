@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.camera import rotation_to_quaternion_wxyz
+from gsjax.camera import rotation_to_quaternion_np
 from gsjax.data.bag_images import camera_info_message, color_message, depth_message
 from gsjax.data.sequence import Sequence
 
@@ -115,7 +115,7 @@ def _tf_message(c2w: np.ndarray, stamp_ns: int, topics: BagTopics, msgtypes) -> 
     """``/tf``: the camera frame's pose in the world frame (camera-to-world)."""
     from gsjax.data.bag_images import header_message, make_message
 
-    w, x, y, z = rotation_to_quaternion_wxyz(np.asarray(c2w[:3, :3], np.float64))
+    w, x, y, z = rotation_to_quaternion_np(np.asarray(c2w[:3, :3], np.float64))
     translation = make_message(msgtypes, "geometry_msgs/msg/Vector3", x=c2w[0, 3], y=c2w[1, 3], z=c2w[2, 3])
     rotation = make_message(msgtypes, "geometry_msgs/msg/Quaternion", x=x, y=y, z=z, w=w)
     transform = make_message(msgtypes, "geometry_msgs/msg/Transform", translation=translation, rotation=rotation)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from gsjax.camera import Intrinsics, invert_transform, make_intrinsics, quaternion_wxyz_to_rotation
+from gsjax.camera import Intrinsics, invert_transform, make_intrinsics, quaternion_to_rotation_np
 from gsjax.data.bag_images import camera_from_info
 from gsjax.data.errors import DatasetError
 from gsjax.data.listing import GivenIntrinsics
@@ -174,7 +174,7 @@ def _extrinsics(bag: BagFile, depth_topic: str, color_topic: str) -> np.ndarray:
             transform[:3, :3], transform[:3, 3] = rotation, [float(x) for x in fields["translation"].split(",")]
         else:
             q, t = msg.rotation, msg.translation
-            transform[:3, :3] = quaternion_wxyz_to_rotation(np.array([q.w, q.x, q.y, q.z]))
+            transform[:3, :3] = quaternion_to_rotation_np(np.array([q.w, q.x, q.y, q.z]))
             transform[:3, 3] = (t.x, t.y, t.z)
         return transform
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from gsjax.camera import Intrinsics, invert_transform, make_intrinsics, quaternion_wxyz_to_rotation
+from gsjax.camera import Intrinsics, invert_transform, make_intrinsics, quaternion_to_rotation_np
 from gsjax.data.bag_db3 import Db3Reader
 from gsjax.data.bag_images import (
     BagCamera,
@@ -319,7 +319,7 @@ def _tf_poses(bag: BagFile, parent: str, child: str) -> tuple[np.ndarray, np.nda
                 continue
             q, t = tf.transform.rotation, tf.transform.translation
             pose = np.eye(4)
-            pose[:3, :3] = quaternion_wxyz_to_rotation(np.array([q.w, q.x, q.y, q.z]) / np.linalg.norm(
+            pose[:3, :3] = quaternion_to_rotation_np(np.array([q.w, q.x, q.y, q.z]) / np.linalg.norm(
                 [q.w, q.x, q.y, q.z]))
             pose[:3, 3] = (t.x, t.y, t.z)
             stamps.append(stamp_ns(tf) / 1e9)

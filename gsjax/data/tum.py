@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gsjax.camera import Intrinsics, make_intrinsics, quaternion_wxyz_to_rotation
+from gsjax.camera import Intrinsics, make_intrinsics, quaternion_to_rotation_np
 from gsjax.data.errors import DatasetError, DatasetWarning
 from gsjax.data.images import image_size
 from gsjax.data.listing import FrameFiles, GivenIntrinsics, given_intrinsics, read_json_numbers
@@ -171,7 +171,7 @@ def read_groundtruth_at(path: Path, times: np.ndarray,
     frame_idx, row_idx = associate_timestamps(times, rows[:, 0], max_dt)
     picked = rows[row_idx]
     q_xyzw = picked[:, 4:] / np.linalg.norm(picked[:, 4:], axis=-1, keepdims=True)
-    c2w[frame_idx, :3, :3] = quaternion_wxyz_to_rotation(np.roll(q_xyzw, 1, axis=-1))
+    c2w[frame_idx, :3, :3] = quaternion_to_rotation_np(np.roll(q_xyzw, 1, axis=-1))
     c2w[frame_idx, :3, 3] = picked[:, 1:4]
     valid[frame_idx] = True
     return c2w, valid

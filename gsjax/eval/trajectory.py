@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from gsjax.camera import invert_rigid, rotation_angle_rad
+from gsjax.camera import rotation_angle_np, se3_inverse_np
 from gsjax.eval.association import associate_timestamps
 from gsjax.eval.run_metrics import TrajectoryMetrics
 
@@ -274,7 +274,7 @@ def ground_truth_on_estimate(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike,
     if not len(frames):
         return None
     first = frames[0]
-    return frames, est[first] @ invert_rigid(gt[first]) @ gt[frames]
+    return frames, est[first] @ se3_inverse_np(gt[first]) @ gt[frames]
 
 
 class Drift(NamedTuple):
@@ -297,7 +297,7 @@ def drift(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike, valid: npt.ArrayLike | 
     frames, gt = on_estimate
     est = _as_poses(est_c2w, "est_c2w")[frames]
     error_m = np.linalg.norm(est[:, :3, 3] - gt[:, :3, 3], axis=1)
-    error_deg = np.degrees(rotation_angle_rad(np.swapaxes(est[:, :3, :3], 1, 2) @ gt[:, :3, :3]))
+    error_deg = np.degrees(rotation_angle_np(np.swapaxes(est[:, :3, :3], 1, 2) @ gt[:, :3, :3]))
     return Drift(frames, error_m, error_deg)
 
 
@@ -325,8 +325,8 @@ def ate_splatam_mean_w2c(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike,
     """
     est, gt, used = _frames_used(est_c2w, gt_c2w, valid)
     est, gt = est[used], gt[used]
-    est_t = invert_rigid(invert_rigid(est[0]) @ est)[:, :3, 3]
-    gt_t = invert_rigid(invert_rigid(gt[0]) @ gt)[:, :3, 3]
+    est_t = se3_inverse_np(se3_inverse_np(est[0]) @ est)[:, :3, 3]
+    gt_t = se3_inverse_np(se3_inverse_np(gt[0]) @ gt)[:, :3, 3]
     alignment = umeyama_alignment(est_t, gt_t, with_scale=False)
     errors = np.linalg.norm(alignment.apply_points(est_t) - gt_t, axis=1)
     return AteResult(_mean(errors), errors, alignment, used)
@@ -353,12 +353,12 @@ def rpe(est_c2w: npt.ArrayLike, gt_c2w: npt.ArrayLike, valid: npt.ArrayLike | No
     """
     est, gt, used = _frames_used(est_c2w, gt_c2w, valid)
     i = np.flatnonzero(used[:-1] & used[1:])
-    rel_gt = invert_rigid(gt[i]) @ gt[i + 1]
-    rel_est = invert_rigid(est[i]) @ est[i + 1]
-    err = invert_rigid(rel_gt) @ rel_est
+    rel_gt = se3_inverse_np(gt[i]) @ gt[i + 1]
+    rel_est = se3_inverse_np(est[i]) @ est[i + 1]
+    err = se3_inverse_np(rel_gt) @ rel_est
     return RpeResult(
         trans_errors_m=np.linalg.norm(err[:, :3, 3], axis=1),
-        rot_errors_deg=np.degrees(rotation_angle_rad(err[:, :3, :3])),
+        rot_errors_deg=np.degrees(rotation_angle_np(err[:, :3, :3])),
         pairs=np.stack([i, i + 1], axis=1),
     )
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gsjax.camera import quaternion_wxyz_to_rotation, rotation_to_quaternion_wxyz
+from gsjax.camera import quaternion_to_rotation_np, rotation_to_quaternion_np
 from gsjax.io.atomic import atomic_write_text
 
 if TYPE_CHECKING:
@@ -65,7 +65,7 @@ def read_tum_trajectory(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray
                 if not norm > 1e-6:
                     raise ValueError(f"{where}: quaternion (qx qy qz qw) has zero length: {text!r}")
                 c2w = np.eye(4)
-                c2w[:3, :3] = quaternion_wxyz_to_rotation(np.roll(q_xyzw / norm, 1))
+                c2w[:3, :3] = quaternion_to_rotation_np(np.roll(q_xyzw / norm, 1))
                 c2w[:3, 3] = xyz
             stamps.append(t)
             poses.append(c2w)
@@ -81,7 +81,7 @@ def format_tum_trajectory(timestamps: npt.ArrayLike, c2w: npt.ArrayLike) -> str:
         raise ValueError(f"need timestamps [N] and c2w [N, 4, 4], got {list(timestamps.shape)} and {list(c2w.shape)}")
     if not np.isfinite(timestamps).all() or np.any(np.diff(timestamps) <= 0):
         raise ValueError("timestamps must be finite and strictly increasing")
-    q_wxyz = rotation_to_quaternion_wxyz(np.nan_to_num(c2w[:, :3, :3]))
+    q_wxyz = rotation_to_quaternion_np(np.nan_to_num(c2w[:, :3, :3]))
     lines = [HEADER]
     for t, pose, q in zip(timestamps, c2w, q_wxyz):
         if np.isfinite(pose).all():

@@ -20,7 +20,7 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from gsjax.camera import rotation_to_quaternion_wxyz
+from gsjax.camera import rotation_to_quaternion_np
 from gsjax.gaussians import Gaussians
 
 ESTIMATE_RGB = (31, 119, 180)
@@ -274,7 +274,7 @@ class MapViewer:
         camera = self._camera
         return self._server.scene.add_camera_frustum(
             name, fov=2.0 * math.atan2(camera.height / 2.0, camera.fy), aspect=camera.width / camera.height,
-            scale=scale, thickness=thickness * scale, color=rgb, wxyz=rotation_to_quaternion_wxyz(c2w[:3, :3]),
+            scale=scale, thickness=thickness * scale, color=rgb, wxyz=rotation_to_quaternion_np(c2w[:3, :3]),
             position=c2w[:3, 3], visible=visible)
 
     def _set_initial_camera(self, trajectory: TrajectorySnapshot, scale: float) -> None:

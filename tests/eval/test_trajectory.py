@@ -12,7 +12,7 @@ import pytest
 from evo.core import sync
 from evo.core.trajectory import PoseTrajectory3D
 
-from gsjax.camera import invert_rigid, invert_transform, quaternion_wxyz_to_rotation, rotation_angle_rad
+from gsjax.camera import invert_transform, quaternion_to_rotation_np, rotation_angle_np, se3_inverse_np
 from gsjax.eval.association import associate_timestamps
 from gsjax.eval.trajectory import (
     Alignment,
@@ -28,7 +28,7 @@ from gsjax.eval.trajectory import (
 
 def random_rotation(rng, n=None):
     q = rng.standard_normal((4,) if n is None else (n, 4))
-    return quaternion_wxyz_to_rotation(q / np.linalg.norm(q, axis=-1, keepdims=True))
+    return quaternion_to_rotation_np(q / np.linalg.norm(q, axis=-1, keepdims=True))
 
 
 def axis_rotation(axis, angle):
@@ -212,8 +212,8 @@ def test_rpe_skips_pairs_that_span_an_invalid_frame():
 
 def test_rotation_angle_is_accurate_for_tiny_angles():
     angle = 1e-9
-    assert rotation_angle_rad(axis_rotation([1, 2, 3], angle)) == pytest.approx(angle, rel=1e-6)
-    assert rotation_angle_rad(axis_rotation([1, 2, 3], np.pi - 1e-3)) == pytest.approx(np.pi - 1e-3, rel=1e-9)
+    assert rotation_angle_np(axis_rotation([1, 2, 3], angle)) == pytest.approx(angle, rel=1e-6)
+    assert rotation_angle_np(axis_rotation([1, 2, 3], np.pi - 1e-3)) == pytest.approx(np.pi - 1e-3, rel=1e-9)
 
 
 # -------------------------------------------------------------------------------------- validity masks
@@ -345,19 +345,19 @@ def test_evaluate_trajectory_without_overlap_is_an_error():
 def test_invert_rigid_is_the_matrix_inverse():
     rng = np.random.default_rng(14)
     poses = np.stack([pose(random_rotation(rng), rng.standard_normal(3)) for _ in range(5)])
-    np.testing.assert_allclose(invert_rigid(poses) @ poses, np.broadcast_to(np.eye(4), (5, 4, 4)), atol=1e-12)
+    np.testing.assert_allclose(se3_inverse_np(poses) @ poses, np.broadcast_to(np.eye(4), (5, 4, 4)), atol=1e-12)
 
 
 def test_invert_transform_is_exact_where_invert_rigid_assumes_orthonormality():
     """A float32 pose is rigid only to rounding: invert_transform inverts the matrix itself (what the files keep),
-    invert_rigid the nearest rigid transform; the two agree to the pose's orthonormality error."""
+    se3_inverse_np the nearest rigid transform; the two agree to the pose's orthonormality error."""
     rng = np.random.default_rng(15)
     poses = np.stack([pose(random_rotation(rng), rng.standard_normal(3)) for _ in range(5)]).astype(np.float32)
     exact = invert_transform(poses)
     assert exact.dtype == np.float64
     np.testing.assert_allclose(exact @ poses.astype(np.float64), np.broadcast_to(np.eye(4), (5, 4, 4)), atol=1e-12)
-    np.testing.assert_allclose(invert_rigid(poses), exact, atol=1e-5)
-    assert np.abs(invert_rigid(poses) - exact).max() > 0  # not the same function
+    np.testing.assert_allclose(se3_inverse_np(poses), exact, atol=1e-5)
+    assert np.abs(se3_inverse_np(poses) - exact).max() > 0  # not the same function
 
 
 def test_evaluate_trajectory_per_frame_errors_are_the_ones_behind_the_statistics():
@@ -389,7 +389,7 @@ def test_ground_truth_on_estimate_starts_at_the_estimates_pose_and_keeps_the_rel
     est = perturb(rng, moved)
     frames, drawn = ground_truth_on_estimate(est, gt, valid)
     np.testing.assert_allclose(drawn[0], est[2], atol=1e-12)
-    relative = lambda poses: invert_rigid(poses[0]) @ poses  # noqa: E731
+    relative = lambda poses: se3_inverse_np(poses[0]) @ poses  # noqa: E731
     np.testing.assert_allclose(relative(drawn), relative(gt[2:]), atol=1e-9)
     assert ground_truth_on_estimate(est, gt, np.zeros(30, bool)) is None
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gsjax.camera import (
-    quaternion_wxyz_to_rotation,
+    quaternion_to_rotation_np,
 )
 from gsjax.io.trajectory import read_tum_trajectory, write_tum_trajectory
 
@@ -15,7 +15,7 @@ def random_c2w(rng, n):
     q = rng.standard_normal((n, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     c2w = np.tile(np.eye(4), (n, 1, 1))
-    c2w[:, :3, :3] = quaternion_wxyz_to_rotation(q)
+    c2w[:, :3, :3] = quaternion_to_rotation_np(q)
     c2w[:, :3, 3] = rng.standard_normal((n, 3))
     return c2w
 

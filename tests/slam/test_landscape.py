@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from gsjax.camera import invert_rigid, rotation_angle_rad
+from gsjax.camera import rotation_angle_np, se3_inverse_np
 from gsjax.slam import landscape as pure
 from gsjax.slam.tracking import TrackingProblem
 from tests.support.tiny_slam import first_frame_map, map_config, relative_gt_w2c, replaced, tiny_sequence
@@ -133,8 +133,8 @@ def _landscapes():
 
 def _error(w2c, w2c_ref):
     """(cm, deg) of w2c [..., 4, 4] from w2c_ref, in float64."""
-    relative = np.asarray(w2c, np.float64) @ invert_rigid(np.asarray(w2c_ref, np.float64))
-    return 100 * np.linalg.norm(relative[..., :3, 3], axis=-1), np.degrees(rotation_angle_rad(relative[..., :3, :3]))
+    relative = np.asarray(w2c, np.float64) @ se3_inverse_np(np.asarray(w2c_ref, np.float64))
+    return 100 * np.linalg.norm(relative[..., :3, 3], axis=-1), np.degrees(rotation_angle_np(relative[..., :3, :3]))
 
 
 def test_when_the_tracker_stands_still_the_fixed_point_is_the_reference_and_both_errors_are_the_offsets():
