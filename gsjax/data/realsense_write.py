@@ -6,6 +6,7 @@ by ``rs.recorder`` while the frames are pushed at their frame rate, so the file 
 
 from __future__ import annotations
 
+import gc
 import time
 from pathlib import Path
 
@@ -50,9 +51,30 @@ def write_realsense(sequence: Sequence, path: str | Path, *, depth_units: float 
             recording.push(i, 1e3 * float(times[i]), raw, to_uint8(frame.color))
     finally:
         recording.close()
+        del recording
+    return _written_stamps(path, len(sequence))
+
+
+def _written_stamps(path: Path, frames: int, timeout_s: float = 30.0) -> np.ndarray:
+    """The colour stamps of the recording at ``path`` once all ``frames`` are in the file: the SDK's writer may still
+    be flushing the last ones when the recorder is released (seen on a loaded machine: 5 of 6 frames read back at
+    once, 6 a moment later)."""
     from gsjax.data.realsense import recorded_color_stamps
 
-    return recorded_color_stamps(path)
+    deadline = time.monotonic() + timeout_s
+    found = 0
+    while True:
+        try:
+            stamps = recorded_color_stamps(path)
+            found = len(stamps)
+            if found == frames:
+                return stamps
+        except Exception:  # a file still being written may not read yet
+            pass
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"{path}: the RealSense SDK's recorder wrote {found} of {frames} colour frames")
+        gc.collect()  # the SDK closes the file when its last handle is collected
+        time.sleep(0.05)
 
 
 class SoftwareRecording:
@@ -103,11 +125,14 @@ class SoftwareRecording:
             sensor.on_video_frame(video)
 
     def close(self) -> None:
-        """Stop the sensors and close the file."""
+        """Stop the sensors and let go of the recorder (the SDK writes out and closes the file once its last handle
+        is gone)."""
         for sensor in self._recorded:
             sensor.stop()
             sensor.close()
+        self._recorded = self._sensors = self._profiles = ()
         del self._recorder
+        gc.collect()
 
 
 def video_stream(rs, k, kind, fmt, bpp: int, uid: int):
