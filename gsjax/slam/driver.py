@@ -100,6 +100,25 @@ def _grow_batch(states, like):
     return jax.vmap(lambda s: grow_capacity(s, like.shape[0]))(states)
 
 
+# A live camera's run starts with more slots than a recording's 2 H W: growing re-runs the frame with a new program
+# shape (a compilation, seconds) while the camera keeps capturing, and those frames are dropped.
+LIVE_CAPACITY_PER_PIXEL = 8
+
+
+def start_capacity(height: int, width: int, live: bool = False) -> int:
+    """The map's capacity a run starts from.
+
+    Args:
+      height: the image height (px).
+      width: the image width (px).
+      live: the run is a live camera's.
+
+    Returns:
+      The number of Gaussian slots: 2 H W, or 8 H W for a live camera.
+    """
+    return (LIVE_CAPACITY_PER_PIXEL if live else 2) * height * width
+
+
 def dropped_in(outputs: StepOutputs, count: int) -> int:
     """The Gaussians a chunk could not insert for lack of free slots: a chunk that dropped any is re-run at
     :func:`doubled` capacity.
@@ -226,7 +245,7 @@ def run(
     if poses is not None and np.shape(poses) != (total, 4, 4):
         raise ValueError(f"poses must be [T, 4, 4] = [{total}, 4, 4], got {np.shape(poses)}")
     height, width = intrinsics.height, intrinsics.width
-    state = initial_state(capacity or 2 * height * width, height, width,
+    state = initial_state(capacity or start_capacity(height, width), height, width,
                           keyframe_capacity_for(total, config.keyframe_every), total, seed)
     parts = []
     for start in range(0, total, chunk):

@@ -22,7 +22,7 @@ from gsjax.app.run_folder.layout import check_run_dir, clear_previous_run, locke
 from gsjax.app.run_folder.outputs import run_record
 from gsjax.app.runtime.cache import exported_call
 from gsjax.app.session.camera import LiveCamera, LiveFrame
-from gsjax.app.session.loop import Group, Runtime, chunk_loop, one_config, start_capacity
+from gsjax.app.session.loop import Group, Runtime, chunk_loop, one_config
 from gsjax.app.session.recorder import Recorder
 from gsjax.app.session.runner import RunOptions
 from gsjax.data.errors import DatasetError
@@ -31,6 +31,7 @@ from gsjax.data.sequence import Sequence
 from gsjax.eval.run_metrics import RunMetrics
 from gsjax.frame import Frame, host_frame
 from gsjax.slam.config import SlamConfig
+from gsjax.slam.driver import start_capacity
 from gsjax.slam.state import initial_state, keyframe_capacity_for
 
 

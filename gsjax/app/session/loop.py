@@ -29,15 +29,6 @@ from gsjax.slam.driver import capacity_of, chunk_poses, doubled, dropped_in, pad
 from gsjax.slam.state import SlamState
 from gsjax.slam.system import StepOutputs, run_chunk
 
-# A live camera's run starts with more slots than a recording's 2 H W: growing re-runs the frame with a new program
-# shape (a compilation, seconds) while the camera keeps capturing, and those frames are dropped.
-LIVE_CAPACITY_PER_PIXEL = 8
-
-
-def start_capacity(height: int, width: int, live: bool = False) -> int:
-    """The map's capacity (Gaussian slots) a run starts from: 2 H W, or 8 H W for a live camera."""
-    return (LIVE_CAPACITY_PER_PIXEL if live else 2) * height * width
-
 
 class Group(NamedTuple):
     """One program call's worth of a batch: a state and its config, or V of each stacked and run as one program.

@@ -48,16 +48,10 @@ class Recorder:
                  outputs: StepOutputs | None = None, kept: dict | None = None):
         self.record, self.options, self.ledger = record, options, ledger
         self.checkpoints, self.checkpoint_every = checkpoints, checkpoint_every
-        for stage in STAGES:
-            ledger.timings.setdefault(stage, 0.0)
         self.kept = dict(kept or {})
         self._parts = [outputs] if outputs is not None and len(outputs.w2c) else []
         self._pending: list[StepOutputs] = []  # the chunks' outputs since the last checkpoint
         self.write_config(record)
-
-    @property
-    def timings(self) -> dict:
-        return self.ledger.timings
 
     @property
     def frames_done(self) -> int:
@@ -80,6 +74,8 @@ class Recorder:
         """Record a chunk: frames ``start ..`` (``frames``, the host frames read), the state after it, its outputs
         ([count, ...] numpy) and its timings (s); a checkpoint when one is due, or ``last``."""
         ledger, timings = self.ledger, self.ledger.timings
+        for stage in STAGES:  # (a sweep's config, given its outputs whole, keeps the sweep's own timings)
+            timings.setdefault(stage, 0.0)
         count = len(outputs.w2c)
         timings["read_frames_s"] += read_seconds
         timings["slam_s"] += seconds

@@ -29,7 +29,7 @@ from gsjax.app.run_folder.run_warnings import run_warnings
 from gsjax.app.runtime.cache import exported_call
 from gsjax.app.runtime.memory import limit_malloc_arenas
 from gsjax.app.runtime.progress import Progress
-from gsjax.app.session.loop import Group, Runtime, chunk_loop, one_config, sequence_frames, start_capacity
+from gsjax.app.session.loop import Group, Runtime, chunk_loop, one_config, sequence_frames
 from gsjax.app.session.recorder import Recorder
 from gsjax.camera import invert_transform
 from gsjax.data.sequence import Sequence
@@ -38,6 +38,7 @@ from gsjax.eval.trajectory import ate_so_far
 from gsjax.io.atomic import remove_stale_temporaries
 from gsjax.io.run_folder import RENDERS
 from gsjax.slam.config import SlamConfig
+from gsjax.slam.driver import start_capacity
 from gsjax.slam.state import SlamState, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs
 
@@ -93,15 +94,15 @@ def run_slam(
     *,
     describe: dict | None = None,
     on_chunk: Callable[[int], None] | None = None,
-    observe: Callable[[SlamState, dict], None] | None = None,
+    observe: Callable[[SlamState, StepOutputs], None] | None = None,
     input_warnings: tuple[str, ...] = (),
 ) -> RunMetrics:
     """Run SLAM on ``sequence`` with ``config``; write every output under ``options.out``; return the metrics.
 
     ``describe`` (dataset name, path, preset, ...) is recorded in ``config.json`` and ``metrics.json``.
     ``on_chunk(frames_done)`` is called after each chunk and its checkpoint, if any (tests use it to interrupt a
-    run); ``observe(state, outputs)`` too, with the state and the per-frame outputs so far as lists (the live
-    viewer); the time it takes is ``stage_timings_s["observe_s"]``.
+    run); ``observe(state, outputs)`` too, with the state and the per-frame outputs so far (:class:`StepOutputs`; the
+    live viewer); the time it takes is ``stage_timings_s["observe_s"]``.
     ``input_warnings``: what opening the sequence warned about, listed first in ``metrics.json``'s ``warnings``.
 
     Raises :class:`gsjax.app.run_folder.layout.RunDirError` before writing anything when ``options.out`` holds a

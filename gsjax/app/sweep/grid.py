@@ -39,7 +39,7 @@ import numpy as np
 from gsjax.app.run_folder.layout import check_run_dir, clear_previous_run, locked_run_dir
 from gsjax.app.runtime.cache import exported_call
 from gsjax.app.runtime.progress import Progress
-from gsjax.app.session.loop import Group, Runtime, chunk_loop, sequence_frames, start_capacity
+from gsjax.app.session.loop import Group, Runtime, chunk_loop, sequence_frames
 from gsjax.app.sweep.devices import batch_mesh, place_batch, share_results, to_host
 from gsjax.app.sweep.resume import finished_runs, prepare_rerun
 from gsjax.config.text import apply_overrides
@@ -48,7 +48,7 @@ from gsjax.eval.run_metrics import RunMetrics
 from gsjax.io.atomic import atomic_write_bytes, atomic_write_json, remove_stale_temporaries
 from gsjax.io.run_folder import SWEEP_FILES, sweep_run
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.driver import concat_outputs, stack_trees, static_key, unstack_tree
+from gsjax.slam.driver import concat_outputs, stack_trees, start_capacity, static_key, unstack_tree
 from gsjax.slam.loops import LoopCaps, common_caps
 from gsjax.slam.state import initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs
