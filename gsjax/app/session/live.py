@@ -61,7 +61,6 @@ def run_live(camera: LiveCamera, config: SlamConfig, options: RunOptions, *, dow
                 describe or {}, live=dict(captured=camera.captured, dropped=camera.dropped)))
 
         ledger = RunLedger(capacity=capacity, record={})
-        ledger.checkpoints.every = options.checkpoint_every
         recorder = Recorder(record(_processed(camera, intrinsics, [], {})), options.outputs, ledger,
                             checkpoints=Checkpoints(out / "checkpoints"), checkpoint_every=options.checkpoint_every)
 

@@ -48,6 +48,8 @@ class Recorder:
                  outputs: StepOutputs | None = None, kept: dict | None = None):
         self.record, self.options, self.ledger = record, options, ledger
         self.checkpoints, self.checkpoint_every = checkpoints, checkpoint_every
+        if checkpoints is not None:
+            ledger.checkpoints.every = checkpoint_every  # (a resumed run's may have had another)
         self.kept = dict(kept or {})
         self._parts = [outputs] if outputs is not None and len(outputs.w2c) else []
         self._pending: list[StepOutputs] = []  # the chunks' outputs since the last checkpoint

@@ -162,7 +162,6 @@ def _run_locked(sequence: Sequence, config: SlamConfig, options: RunOptions, des
             log.info("resumed from checkpoint at frame %d (capacity %d)", ledger.frames_done, ledger.capacity)
         elif resume_warnings:
             fell_back("no checkpoint could be read: the run starts from frame 0")
-    ledger.checkpoints.every = options.checkpoint_every
     recorder = Recorder(record, options.outputs, ledger, checkpoints=checkpoints,
                         checkpoint_every=options.checkpoint_every, outputs=restored_outputs)
     timings = ledger.timings  # cover the whole run, resumed or not
