@@ -61,7 +61,7 @@ COMMANDS = command_lines()
 
 def test_the_pages_hold_commands_of_every_kind():
     kinds = {argv[0] for _, argv in COMMANDS}
-    assert {"run", "sweep", "landscape", "report", "view", "synth", "eval", "config"} <= kinds, kinds
+    assert {"run", "sweep", "tune", "landscape", "report", "view", "synth", "eval", "config"} <= kinds, kinds
 
 
 @pytest.mark.parametrize("where, argv", COMMANDS, ids=[where for where, _ in COMMANDS])

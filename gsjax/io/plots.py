@@ -193,6 +193,32 @@ def _landscape_colours(modes: list[str]) -> dict[str, str]:
     return {mode: fixed.get(mode) or next(others, "0.3") for mode in modes}
 
 
+def plot_tuning(path: str | os.PathLike, rows: list[dict], fields: list[str], objective: str,
+                dpi: int = 120) -> Path:
+    """``gsjax tune``'s steps: the objective (top) and each field relative to its start (bottom, log scale)."""
+    steps = [row["step"] for row in rows]
+    fig = Figure(figsize=(7, 6), layout="constrained")
+    top = fig.add_subplot(2, 1, 1)
+    top.plot(steps, [row["objective"] for row in rows], marker=".", color="C0")
+    best = min(range(len(rows)), key=lambda i: rows[i]["objective"])
+    top.plot([steps[best]], [rows[best]["objective"]], marker="*", markersize=12, color="C3", linestyle="none",
+             label=f"lowest, step {steps[best]}")
+    top.set_ylabel(f"objective ({objective})")
+    top.legend(loc="best", fontsize=8)
+    top.grid(True, linewidth=0.3)
+    bottom = fig.add_subplot(2, 1, 2, sharex=top)
+    for i, name in enumerate(fields):
+        start = rows[0][name]
+        ratios = [row[name] / start if start else row[name] for row in rows]
+        bottom.plot(steps, ratios, marker=".", color=f"C{i % 10}", label=f"{name} (start {start:.4g})")
+    bottom.set_yscale("log")
+    bottom.set_xlabel("step")
+    bottom.set_ylabel("value / start")
+    bottom.legend(loc="best", fontsize=7)
+    bottom.grid(True, which="both", linewidth=0.3)
+    return _save(fig, path, dpi)
+
+
 def plot_landscape(path: str | os.PathLike, document: dict, title: str | None = None, dpi: int = 120) -> Path:
     """Loss (top row) and gradient (bottom row) per axis of a ``landscape.json`` document, one line per mode, each
     mode's basin of convergence marked by dashed lines at +- its width (dotted: the basin to its fixed point)."""

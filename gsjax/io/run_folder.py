@@ -41,6 +41,7 @@ RUN_FILES = (CONFIG, CHECKPOINTS, TRAJECTORY, GROUNDTRUTH, TRAJECTORY_PLOT, REND
 # ... of a sweep and of a landscape.
 SWEEP_FILES = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json", "runs", REPORT)
 LANDSCAPE_FILES = ("landscape.json", "landscape.png", "landscape2d.png")
+TUNE_FILES = ("tuned.json", "tune.csv", "tune.png")
 
 
 def sweep_run(out: str | Path, index: int) -> Path:

@@ -66,6 +66,10 @@ class CBKNN:
       truncate: composite only the corrected slots (paper-literal) instead of the hybrid default.
       select: ``"first_k"`` or ``"top_weight"`` (which contributors form G_p).
       shift_mode: ``"unit"`` or ``"fraction"``.
+      straight_through_k: K per cell passes the derivative of its unrounded value ``clip(k0 max(0.5, 1 + beta gamma
+        / (rho + eps)), k_min, k_max)`` and a pixel's slot K_p (the next one after G_p) the derivative of its
+        membership, so that ``k0`` and ``beta`` have a gradient (hypergradients, :mod:`gsjax.slam.hypergrad`); the
+        rounded K and every render's value stay as they are. False: K's derivative is 0 (a step function).
     """
 
     alpha: float = param(0.2, "px", low=0.0, unit_by=("shift_mode", {"unit": "px", "fraction": "ratio"}))
@@ -82,6 +86,7 @@ class CBKNN:
     truncate: bool = param(False, "flag", static=True)
     select: str = param("first_k", "choice", static=True, choices=SELECT_MODES)
     shift_mode: str = param("unit", "choice", static=True, choices=SHIFT_MODES)
+    straight_through_k: bool = param(False, "flag", static=True)
 
     def __post_init__(self):
         check_fields(self, "CBKNN")
@@ -156,9 +161,11 @@ def density_map(projected: Projected, height: int, width: int, cell: int) -> jax
 
 
 def kernel_size_map(rho: jax.Array, cbknn: CBKNN, motion: float | jax.Array) -> jax.Array:
-    """K per cell [cells_y, cells_x] int32: ``clip(round(k0 max(0.5, 1 + beta gamma / (rho + eps))), k_min, k_max)``.
+    """K per cell [cells_y, cells_x]: ``clip(round(k0 max(0.5, 1 + beta gamma / (rho + eps))), k_min, k_max)``.
 
-    ``round`` is round-half-to-even. The ratio is capped before rounding so empty cells (rho = 0) stay finite.
+    ``round`` is round-half-to-even. The ratio is capped before rounding so empty cells (rho = 0) stay finite. With
+    ``cbknn.straight_through_k`` K is float32 (its values the same integers) and carries the derivative of the
+    unrounded, clipped ``k0 max(...)``.
 
     Args:
       rho: normalised density (:func:`density_map`), [cells_y, cells_x] (any shape: elementwise).
@@ -166,11 +173,14 @@ def kernel_size_map(rho: jax.Array, cbknn: CBKNN, motion: float | jax.Array) -> 
       motion: inter-frame motion gamma in [0, 1] (:func:`motion_from_poses`), a scalar.
 
     Returns:
-      K of ``rho``'s shape, int32 in [k_min, k_max].
+      K of ``rho``'s shape, int32 in [k_min, k_max] (float32 with ``straight_through_k``).
     """
     factor = jnp.maximum(0.5, 1.0 + cbknn.beta * motion / (rho + cbknn.eps))
-    k = jnp.round(jnp.minimum(cbknn.k0 * factor, float(cbknn.k_max) + 1.0))
-    return jnp.clip(k, cbknn.k_min, cbknn.k_max).astype(jnp.int32)
+    k = jnp.clip(jnp.round(jnp.minimum(cbknn.k0 * factor, float(cbknn.k_max) + 1.0)), cbknn.k_min, cbknn.k_max)
+    if not cbknn.straight_through_k:
+        return k.astype(jnp.int32)
+    unrounded = jnp.clip(cbknn.k0 * factor, cbknn.k_min, cbknn.k_max)
+    return k + (unrounded - jax.lax.stop_gradient(unrounded))
 
 
 def pixel_cells(pixels: jax.Array, height: int, width: int, cell: int) -> jax.Array:
@@ -226,23 +236,38 @@ def correction_mask(slots: Slots, weights: jax.Array, k_pixel: jax.Array, cbknn:
       slots: the contributor :class:`~gsjax.raster.composite.Slots` [K, P] in depth order (only ``valid`` is
         read).
       weights: [K, P] canonical blend weights (read only with ``select="top_weight"``).
-      k_pixel: [P] int32 kernel size K_p of each pixel.
+      k_pixel: [P] kernel size K_p of each pixel (int32, or float32 with ``straight_through_k``).
       cbknn: the configuration (``select`` and ``k_max`` are read).
 
     Returns:
       [K, P] bool, True for the valid slots of G_p: among the first K_p slots (``"first_k"``), or the K_p with the
         largest weights, at most ``k_max``, ties to the nearer slot (``"top_weight"``).
     """
+    return slots.valid & (_slot_ranks(slots, weights, cbknn) < jax.lax.stop_gradient(k_pixel)[None, :])
+
+
+def _slot_ranks(slots: Slots, weights: jax.Array, cbknn: CBKNN) -> jax.Array:
+    """[K, P] each slot's place in G_p's order of choice (0 first): its depth order (``first_k``), or its rank by
+    canonical weight (``top_weight``; slots past the ``k_max`` heaviest rank ``k_max``). No gradient."""
     num_slots = slots.valid.shape[0]
     if cbknn.select == "first_k":
-        return slots.valid & (jnp.arange(num_slots)[:, None] < k_pixel[None, :])
+        return jnp.broadcast_to(jnp.arange(num_slots)[:, None], slots.valid.shape)
     # top_weight: the k_pixel largest canonical blend weights (ties to the nearer slot), kept in depth order.
     k_top = min(cbknn.k_max, num_slots)
     key = jnp.where(slots.valid, jax.lax.stop_gradient(weights), -1.0).T  # [P, K]
     _, top = jax.lax.top_k(key, k_top)  # [P, k_top] slot positions, best first
-    rank_ok = jnp.arange(k_top)[None, :] < k_pixel[:, None]
-    chosen = jnp.zeros(key.shape, bool).at[jnp.arange(top.shape[0])[:, None], top].max(rank_ok)
-    return chosen.T & slots.valid
+    ranks = jnp.full(key.shape, k_top, jnp.int32).at[jnp.arange(top.shape[0])[:, None], top].set(
+        jnp.arange(k_top, dtype=jnp.int32)[None, :])
+    return ranks.T
+
+
+def _membership_tangent(slots: Slots, weights: jax.Array, k_pixel: jax.Array, cbknn: CBKNN) -> jax.Array | None:
+    """[K, P] zeros that carry the derivative of each slot's membership of G_p with respect to K_p
+    (``straight_through_k``: the slot ranked K_p, the next one after G_p, enters at rate 1); None without it."""
+    if not cbknn.straight_through_k:
+        return None
+    ramp = jnp.clip(k_pixel[None, :] - _slot_ranks(slots, weights, cbknn) + 0.5, 0.0, 1.0)
+    return jnp.where(slots.valid, ramp - jax.lax.stop_gradient(ramp), 0.0)
 
 
 def correct_slots(
@@ -255,19 +280,22 @@ def correct_slots(
       pixels: [P, 2] (u, v) of each pixel (px).
       alpha: canonical per-slot alpha f_k [K, P] (:func:`~gsjax.raster.composite.slot_alpha`).
       weights: canonical blend weights [K, P] (:func:`~gsjax.raster.composite.blend_weights`).
-      k_pixel: [P] int32 kernel size K_p per pixel.
+      k_pixel: [P] kernel size K_p per pixel (int32, or float32 with ``straight_through_k``).
       cbknn: the configuration.
 
     Returns:
       The corrected slots as a :class:`Corrected`, every field [K, P], to composite with the slots' depths.
     """
     mask = correction_mask(slots, weights, k_pixel, cbknn)
+    tangent = _membership_tangent(slots, weights, k_pixel, cbknn)
     num_slots = alpha.shape[0]
-    # first_k only ever corrects the first k_max slots: work on that prefix and pass the rest through.
+    # first_k only ever corrects the first k_max slots (and the next one's membership only moves K_p's derivative,
+    # zero at k_max): work on that prefix and pass the rest through.
     width = min(cbknn.k_max, num_slots) if cbknn.select == "first_k" else num_slots
     head = lambda x: x[:width]  # noqa: E731
     new_alpha, r, g, b, shift_px = _correct(
-        jax.tree_util.tree_map(head, slots), pixels, head(alpha), head(mask), cbknn
+        jax.tree_util.tree_map(head, slots), pixels, head(alpha), head(mask), cbknn,
+        None if tangent is None else head(tangent)
     )
     rest_alpha = jnp.zeros_like(alpha[width:]) if cbknn.truncate else alpha[width:]
     join = lambda first, rest: jnp.concatenate([first, rest], axis=0)  # noqa: E731
@@ -281,9 +309,17 @@ def correct_slots(
     )
 
 
-def _correct(slots: Slots, pixels, alpha, mask, cbknn: CBKNN):
-    """D.5 on slots [W, P] with G_p given by ``mask``: (alpha', r', g', b', |shift| px), each [W, P]."""
+def _correct(slots: Slots, pixels, alpha, mask, cbknn: CBKNN, tangent=None):
+    """D.5 on slots [W, P] with G_p given by ``mask``: (alpha', r', g', b', |shift| px), each [W, P]. ``tangent``
+    (zeros, or None) carries the derivative of the slots' membership (:func:`_membership_tangent`)."""
     m = mask.astype(alpha.dtype)
+    if tangent is not None:
+        m = m + tangent
+
+    def chosen(inside, outside):  # where(mask, inside, outside), its derivative in the membership too
+        value = jnp.where(mask, inside, outside)
+        return value if tangent is None else value + tangent * (inside - outside)
+
     count = jnp.sum(m, axis=0)
     centroid_u = _safe_divide(jnp.sum(m * slots.u, axis=0), count)  # [P]
     centroid_v = _safe_divide(jnp.sum(m * slots.v, axis=0), count)
@@ -297,8 +333,11 @@ def _correct(slots: Slots, pixels, alpha, mask, cbknn: CBKNN):
         scale = cbknn.alpha
     shift_u, shift_v = scale * offset_u, scale * offset_v
     if cbknn.position:
+        # (With the membership's derivative, the slot after G_p is shifted too: its entering is that derivative.)
+        within = jnp.ones_like(mask) if tangent is not None else mask
         shifted_alpha = slot_alpha(
-            slots, pixels, u=jnp.where(mask, slots.u + shift_u, slots.u), v=jnp.where(mask, slots.v + shift_v, slots.v)
+            slots, pixels, u=jnp.where(within, slots.u + shift_u, slots.u),
+            v=jnp.where(within, slots.v + shift_v, slots.v)
         )
         shift_px = jax.lax.stop_gradient(jnp.where(mask, jnp.sqrt(shift_u * shift_u + shift_v * shift_v), 0.0))
     else:
@@ -307,6 +346,6 @@ def _correct(slots: Slots, pixels, alpha, mask, cbknn: CBKNN):
     colours: tuple[jax.Array, ...] = (slots.r, slots.g, slots.b)
     if cbknn.colour:
         consensus_weights = _safe_divide(m * alpha, jnp.sum(m * alpha, axis=0, keepdims=True))
-        colours = tuple(jnp.where(mask, jnp.sum(consensus_weights * c, axis=0, keepdims=True), c) for c in colours)
+        colours = tuple(chosen(jnp.sum(consensus_weights * c, axis=0, keepdims=True), c) for c in colours)
     fallback = jnp.zeros_like(alpha) if cbknn.truncate else alpha
-    return (jnp.where(mask, shifted_alpha, fallback),) + colours + (shift_px,)
+    return (chosen(shifted_alpha, fallback),) + colours + (shift_px,)

@@ -354,7 +354,8 @@ def _render(
 
             def no_kernel():
                 cells = (-(-grid.height // cbknn.cell), -(-grid.width // cbknn.cell))
-                return jnp.zeros(cells, jnp.float32), jnp.zeros(cells, jnp.int32)
+                return jnp.zeros(cells, jnp.float32), jnp.zeros(cells, jnp.float32 if cbknn.straight_through_k
+                                                                 else jnp.int32)
 
             rho, k_map = kernel_sizes() if smooth is None else jax.lax.cond(smooth, kernel_sizes, no_kernel)
             k_pixel = k_map.reshape(-1)[cb.pixel_cells(pixels, grid.height, grid.width, cbknn.cell)]
@@ -371,7 +372,7 @@ def _render(
         if cbknn is not None:
             assert k_pixel is not None  # set with cbknn above
             cbknn_stats = cb.CBKNNStats(
-                k_map=k_map,
+                k_map=jax.lax.stop_gradient(k_map).astype(jnp.int32),
                 rho_map=rho,
                 mean_shift_px=shift_sum / jnp.maximum(num_corrected, 1),
                 fraction_fewer_than_k=jnp.sum(in_image & (selection.num_kept < k_pixel)) / jnp.sum(in_image),

@@ -9,9 +9,11 @@ program. :func:`counted_scan` runs such a loop in one of two forms, a static cho
   iterations run, nothing for the cap;
 * a ``lax.scan`` over the cap whose iterations from the count on are skipped by ``lax.cond``, for programs that
   reverse mode must pass through (hypergradients differentiate through the tracker's iterations; a while loop has
-  no reverse mode). It costs more per iteration run: on XLA:CPU a SLAM step of the ``cpu`` preset took 21 % longer
-  with every loop in this form (frame 16 of the noisy synthetic room, 1256 against 1038 ms, medians of 9 interleaved
-  runs in one process), so a run does not use it.
+  no reverse mode). Each iteration is a ``jax.checkpoint``: the backward pass keeps the carries alone and
+  recomputes an iteration's inside (without it a hypergradient of 10 frames at 80x60 asked for 108 GB). It costs
+  more per iteration run: on XLA:CPU a SLAM step of the ``cpu`` preset took 21 % longer with every loop in this
+  form (frame 16 of the noisy synthetic room, 1256 against 1038 ms, medians of 9 interleaved runs in one process),
+  so a run does not use it.
 
 Under ``vmap`` with counts that differ between the batch entries, both forms run every entry until the largest
 count (the while loop's predicate and the cond's are then batched): a batched program costs its largest count.
@@ -79,6 +81,9 @@ def counted_scan(body: Callable[[jax.Array, _Carry], _Carry], init: _Carry, coun
             return go if running is None else go & running(carry)
 
         return jax.lax.while_loop(going, lambda state: (state[0] + 1, body(*state)), (jnp.int32(0), init))[1]
+
+    # Each iteration is recomputed in the backward pass (only the carries are kept): memory bounded by the cap.
+    body = jax.checkpoint(body, prevent_cse=False)
 
     def step(carry, i):
         go = i < count

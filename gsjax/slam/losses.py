@@ -154,7 +154,7 @@ def tracking_loss(view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array, 
       [] the loss.
     """
     if terms.blur_radius:
-        depth, color = _masked_residuals(view, color_gt, depth_gt, terms)
+        depth, color = masked_residuals(view, color_gt, depth_gt, terms)
         return terms.lambda_depth * jnp.sum(jnp.abs(depth)) + terms.lambda_color * jnp.sum(jnp.abs(color))
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, terms.sil_threshold))
     depth = rendered_depth(view, terms.normalized_depth)
@@ -181,14 +181,25 @@ def tracking_residuals(view: RenderedView, color_gt: jax.Array, depth_gt: jax.Ar
       [H*W*4] the depth residuals (H*W) and then the colour residuals (H*W*3), render - frame, zero outside
         :func:`tracking_mask` (before the blur).
     """
-    depth, color = _masked_residuals(view, color_gt, depth_gt, terms)
+    depth, color = masked_residuals(view, color_gt, depth_gt, terms)
     depth, color = depth * jnp.sqrt(terms.lambda_depth), color * jnp.sqrt(terms.lambda_color)
     return jnp.concatenate([depth.reshape(-1), color.reshape(-1)])
 
 
-def _masked_residuals(view, color_gt, depth_gt, terms: TrackingTerms) -> tuple[jax.Array, jax.Array]:
-    """(depth [H, W], colour [H, W, 3]) render - frame, zero outside :func:`tracking_mask`, then filtered by
-    :func:`gaussian_blur` when ``blur_radius`` > 0."""
+def masked_residuals(view: RenderedView, color_gt: jax.Array, depth_gt: jax.Array,
+                     terms: TrackingTerms) -> tuple[jax.Array, jax.Array]:
+    """The terms of :func:`tracking_loss` before their absolute values and weights.
+
+    Args:
+      view: the render.
+      color_gt: [H, W, 3] the observed colour.
+      depth_gt: [H, W] the observed depth (m; 0 marks an invalid pixel).
+      terms: the threshold and filters (the weights are not applied).
+
+    Returns:
+      (depth [H, W] m, colour [H, W, 3]) render - frame, zero outside :func:`tracking_mask` (no gradient through
+        the mask), then filtered by :func:`gaussian_blur` when ``blur_radius`` > 0.
+    """
     mask = jax.lax.stop_gradient(tracking_mask(view, depth_gt, terms.sil_threshold))
     depth = jnp.where(mask, rendered_depth(view, terms.normalized_depth) - depth_gt, 0.0)
     color = jnp.where(mask[..., None], _compared_color(view, color_gt, mask, terms.match_exposure) - color_gt, 0.0)

@@ -198,18 +198,55 @@ def _coast(state: SlamState, frame: Frame, config: SlamConfig, pose) -> tuple[Sl
     return new_state, outputs
 
 
-def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics, pose):
-    t = state.frame
+class FrameInput(NamedTuple):
+    """A frame with usable depth as :func:`step` tracks it (:func:`frame_input`).
+
+    Attributes:
+      state: the state before the frame, its map cleaned of Gaussians with a non-finite parameter and given the
+        persistent noise of ``config.noise`` (when its frame has come).
+      frame: the frame with the depth noise of ``config.noise``.
+      problem: its tracking problem (:func:`tracking_problem`) on the map as tracking sees it (the per-frame noise).
+      freed: [] int32 the Gaussians freed for a non-finite parameter.
+    """
+
+    state: SlamState
+    frame: Frame
+    problem: TrackingProblem
+    freed: jax.Array
+
+
+def frame_input(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics) -> FrameInput:
+    """What :func:`step` tracks for a frame with usable depth: the cleaned map, the injected noise and the problem.
+
+    Args:
+      state: the state after the previous frames.
+      frame: the frame (after :func:`sanitize_frame`).
+      config: the SLAM config (its ``noise``, ``cbknn`` and ``keyframe_every`` are read).
+      intrinsics: the camera at the frame's resolution.
+
+    Returns:
+      The frame's :class:`FrameInput`.
+    """
     # A map handed in with non-finite parameters (a restored or edited state) is cleaned before tracking sees it.
-    stored, freed_before = state.gaussians.without_nonfinite()
+    stored, freed = state.gaussians.without_nonfinite()
     noisy = compiles_noise(config)  # (static: a program whose levels are all 0 compiles no draw)
     if noisy:
-        stored = perturb_stored_map(stored, config.noise, t, jax.random.fold_in(state.key, NOISE_STREAM + 2))
+        stored = perturb_stored_map(stored, config.noise, state.frame,
+                                    jax.random.fold_in(state.key, NOISE_STREAM + 2))
         frame = add_depth_noise(frame, config.noise, jax.random.fold_in(state.key, NOISE_STREAM))
     state = dataclasses.replace(state, gaussians=stored)
+    problem = tracking_problem(state, frame.color, frame.depth, config, intrinsics)
+    if noisy:
+        problem = problem._replace(gaussians=perturb_map(state.gaussians, config.noise,
+                                                         jax.random.fold_in(state.key, NOISE_STREAM + 1)))
+    return FrameInput(state, frame, problem, freed)
+
+
+def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics, pose):
+    state, frame, problem, freed_before = frame_input(state, frame, config, intrinsics)
+    t = state.frame
     started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
     keyframe = _is_keyframe(state, config.keyframe_every)
-    problem = tracking_problem(state, frame.color, frame.depth, config, intrinsics)
     smooth, gamma, w2c_init = problem.smooth, problem.gamma, problem.w2c_init
     key_window, key_map, key_next = jax.random.split(state.key, 3)
 
@@ -217,9 +254,7 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         known = _known(pose)
 
         def do_track():
-            seen = perturb_map(state.gaussians, config.noise, jax.random.fold_in(state.key, NOISE_STREAM + 1)) \
-                if noisy else state.gaussians
-            return track_guarded(problem._replace(gaussians=seen), config, state.previous_tracking_loss)
+            return track_guarded(problem, config, state.previous_tracking_loss)
 
         def at(w2c):
             return lambda: GuardedTrack(w2c, jnp.float32(0.0), jnp.int32(0), jnp.bool_(False), jnp.bool_(False),

@@ -132,7 +132,9 @@ class Stage(NamedTuple):
 def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> TrackingObjective:
     """What the tracker minimises for ``problem``: its renders and loss around ``problem.w2c_init``.
 
-    The map is held fixed (no gradient, ``raster.pose_only``). In ``paper`` mode with ``cbknn.track_keyframes``,
+    The map is held fixed (no gradient, ``raster.pose_only``; in a program whose loops are differentiable,
+    :attr:`gsjax.slam.loops.LoopCaps.differentiable`, the pose's derivative with respect to the map passes). In
+    ``paper`` mode with ``cbknn.track_keyframes``,
     where ``problem.smooth`` is true (a keyframe), the renders are CB-KNN's and the colour weight is
     ``cbknn.lambda_color_keyframe``; elsewhere the canonical render and ``tracking.lambda_color``.
 
@@ -145,7 +147,9 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
     """
     cfg = config.tracking
     gaussians, color, depth, w2c_init, intrinsics, smooth, gamma = problem
-    gaussians = jax.lax.stop_gradient(gaussians)
+    if config.caps is None or not config.caps.differentiable:
+        # (A hypergradient through the whole window lets the map's derivative through: the pose depends on it.)
+        gaussians = jax.lax.stop_gradient(gaussians)
     config = dataclasses.replace(config, raster=dataclasses.replace(config.raster, pose_only=True))
     smooth = jnp.logical_and(smooth, config.cbknn.track_keyframes)
     lambda_color = jnp.where(jnp.logical_and(smooth, config.cbknn.smooth_renders), config.cbknn.lambda_color_keyframe,
@@ -183,7 +187,7 @@ def track(problem: TrackingProblem, config: SlamConfig) -> TrackResult:
     if config.tracking.optimizer == "lm":
         # LM's Jacobian is forward mode, which the Pallas compositing (a custom_vjp) does not have.
         config = dataclasses.replace(config, raster=config.raster.for_forward_mode())
-        return _track_lm(tracking_stages(problem, config, caps), problem.w2c_init)
+        return _track_lm(tracking_stages(problem, config, caps), problem.w2c_init, caps.differentiable)
     return _track_adam(tracking_stages(problem, config, caps), problem.w2c_init, config.tracking,
                        caps.differentiable, tracking_objective(problem, config).select)
 
@@ -419,19 +423,21 @@ def _step_limited() -> type:
     return StepLimited
 
 
-def _track_lm(stages: list[Stage], w2c_init) -> TrackResult:
+def _track_lm(stages: list[Stage], w2c_init, unrolled: bool = False) -> TrackResult:
     """Levenberg-Marquardt on each stage's residuals in order (at most its ``iters`` steps, within its cap), each
     from the previous one's solution where that is finite (else from the start); the last stage's solution is kept
-    where its loss beats the start's."""
+    where its loss beats the start's. Reverse mode passes optimistix's implicit adjoint (the solution's derivative
+    at its fixed point), or with ``unrolled`` its steps (checkpointed)."""
     import optimistix as optx
 
     inner: Any = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)  # generic over types optimistix leaves open
+    adjoint = optx.RecursiveCheckpointAdjoint() if unrolled else optx.ImplicitAdjoint()
 
     def solve(stage: Stage, start):
         assert stage.residuals is not None
         solver: Any = _step_limited()(inner, jnp.asarray(stage.iters, jnp.int32), inner.rtol, inner.atol, inner.norm)
         return optx.least_squares(lambda delta, _: stage.residuals(delta), solver, start, max_steps=stage.cap,
-                                  throw=False)
+                                  throw=False, adjoint=adjoint)
 
     delta0 = jnp.zeros(6, jnp.float32)
     start, steps = delta0, jnp.int32(0)
@@ -502,7 +508,8 @@ def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: j
     sizes times ``guard.retry_lr_scale``; the second attempt is kept when it is within the bound and the first is
     not, or both are and its loss is lower. When neither is within the bound the pose is the prediction.
 
-    Both attempts are passes of one ``while_loop`` over a single traced tracker, so the compiled program holds the
+    Both attempts are passes of one ``while_loop`` (a ``scan`` of two in a differentiable program, for reverse mode)
+    over a single traced tracker, so the compiled program holds the
     tracker once and the retry costs nothing when no frame diverges (also under ``vmap``, where a ``cond`` would
     run both sides).
 
@@ -532,7 +539,14 @@ def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: j
             return (number == 0) | ((number == 1) & _diverged(first, w2c_init, previous_loss, cfg))
 
         zeros = TrackResult(jnp.zeros((4, 4), jnp.float32), jnp.float32(0.0), jnp.int32(0), jnp.int32(0))
-        _, first, second = jax.lax.while_loop(another, attempt, (jnp.int32(0), zeros, zeros))
+        init = (jnp.int32(0), zeros, zeros)
+        if config.caps is not None and config.caps.differentiable:  # (reverse mode passes a scan, not a while loop)
+            def attempt_if(carry, _):
+                return jax.lax.cond(another(carry), attempt, lambda c: c, carry), None
+
+            _, first, second = jax.lax.scan(attempt_if, init, None, length=2)[0]
+        else:
+            _, first, second = jax.lax.while_loop(another, attempt, init)
     else:
         first = second = track(problem, config)
     retry = _diverged(first, w2c_init, previous_loss, cfg)

@@ -23,11 +23,12 @@ from gsjax.app.cli import (
     run,
     sweep,
     synth,
+    tune,
     view,
 )
 from gsjax.app.cli.common import Parser, UserError, parse_overrides, show_warning
 
-COMMANDS = (run, sweep, landscape, report, view, bench, evaluate, synth, config)
+COMMANDS = (run, sweep, tune, landscape, report, view, bench, evaluate, synth, config)
 
 
 def build_parser() -> argparse.ArgumentParser:

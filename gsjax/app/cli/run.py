@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from gsjax.app.cli import common
 
 
@@ -28,6 +30,9 @@ def add(sub) -> None:
                         "doubles, re-running the chunk")
     p.add_argument("--eval-every", type=int, default=5, help="render metrics on t=0 and (t+1) %% N == 0")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--tuned", type=Path, default=None, metavar="FILE",
+                   help="apply the fields of a tuned.json (gsjax tune) as overrides; --FIELD VALUE on the command "
+                        "line wins over it")
     p.add_argument("--viewer", action="store_true",
                    help="show the map live in a browser viewer, updated after each chunk; it stays up after the run "
                         "until Ctrl-C or SIGTERM")
@@ -138,6 +143,10 @@ def _live_viewer(args, camera, config, factor: int, frames: int):
 
 
 def run(args) -> int:
+    if args.tuned is not None:
+        from gsjax.app.tune import read_tuned
+
+        args.overrides = {**{name: repr(value) for name, value in read_tuned(args.tuned).items()}, **args.overrides}
     if args.dataset == "realsense" and (str(args.path) == "live" or args.realtime):
         return run_live(args)
     if args.realtime:

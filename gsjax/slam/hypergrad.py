@@ -1,0 +1,273 @@
+"""Hypergradients: the derivative of an objective of a SLAM window with respect to traced config fields.
+
+    window = hypergrad.record(frames, config, intrinsics)          # the run, with each frame's state before it
+    result = hypergrad.hypergradient(window, config, intrinsics, ["tracking.lr_trans", "cbknn.params.alpha"])
+    result.value, result.gradient["tracking.lr_trans"]               # d objective / d field, in the field's unit
+
+The objective (:mod:`gsjax.slam.objectives`) is ``residual`` (no ground truth needed) or ``ate``. A tracked pose's
+derivative is taken one of two ways (``adjoint``):
+
+* ``unrolled``: reverse mode through the tracker's iterations (loops as scans over their caps, each iteration
+  checkpointed; :class:`gsjax.slam.loops.LoopCaps` ``differentiable``): what a finite number of iterations ends at,
+  so it has the derivative of the fields that move that end and not the fixed point (learning rates, their decay);
+* ``implicit``: the pose as the fixed point of its loss, ``-H^-1 d2L / (d xi d theta)``: for ``adam`` at the recorded
+  pose (:func:`gsjax.slam.implicit.implicit_pose`, no iteration replayed), for ``lm`` optimistix's implicit adjoint.
+  Fields that do not move the fixed point (learning rates) have no implicit derivative.
+
+The map's dependence on the fields is cut (``truncation``):
+
+* ``frame``: each frame's pose is differentiated with the state before it held fixed (its map, its prediction, its
+  keyframes): the objective's derivative sums each frame's own. Only tracking is replayed;
+* ``window``: nothing is held: the derivative passes every step (densification's poses, the mapping iterations, the
+  constant-velocity predictions, CB-KNN's motion) from the first frame on. Unrolled only; a window's whole SLAM in
+  reverse mode.
+
+Renders run on the XLA path (Pallas' backward has no derivative of its own), and CB-KNN's adaptive K passes its
+unrounded value's derivative (``CBKNN.straight_through_k``), so that ``k0`` and ``beta`` have one; values unchanged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gsjax.camera import Intrinsics, orthonormalize
+from gsjax.config.paths import differentiable_entry, replace_path
+from gsjax.frame import Frame
+from gsjax.slam.config import SlamConfig
+from gsjax.slam.driver import capacity_of, concat_outputs, dropped_in, pad_chunk, stack_trees, start_capacity
+from gsjax.slam.implicit import implicit_pose
+from gsjax.slam.loops import loop_caps
+from gsjax.slam.objectives import OBJECTIVES, AteTarget, ate, ate_target, frame_residual, mean_over
+from gsjax.slam.state import SlamState, grow_capacity, initial_state, keyframe_capacity_for
+from gsjax.slam.system import StepOutputs, frame_input, run_chunk, sanitize_frame, step, unknown_poses
+from gsjax.slam.tracking import track_guarded
+
+ADJOINTS = ("unrolled", "implicit")
+TRUNCATIONS = ("frame", "window")
+
+
+class Window(NamedTuple):
+    """A recorded SLAM run over a window of frames (:func:`record`), what a hypergradient replays.
+
+    Attributes:
+      frames: the frames, every leaf with a leading axis of T (their ground truth is read by ``ate`` only).
+      states: the :class:`gsjax.slam.state.SlamState` before each frame, stacked [T] (one capacity: the run's last).
+      outputs: the per-frame :class:`gsjax.slam.system.StepOutputs`, stacked [T].
+    """
+
+    frames: Frame
+    states: SlamState
+    outputs: StepOutputs
+
+
+class Hypergradient(NamedTuple):
+    """What :func:`hypergradient` returns.
+
+    Attributes:
+      value: the objective (m for ``ate``; m + colour units for ``residual``) at the replayed poses.
+      gradient: ``{field: d objective / d field}``, each in the objective's unit per the field's unit.
+      w2c: [T, 4, 4] the replayed world-to-camera poses (m); the recorded ones for ``implicit``.
+    """
+
+    value: float
+    gradient: dict[str, float]
+    w2c: np.ndarray
+
+
+def record(frames: Frame | Sequence[Frame], config: SlamConfig, intrinsics: Intrinsics, *, seed: int = 0,
+           capacity: int | None = None, call: Callable | None = None) -> Window:
+    """SLAM over ``frames`` one at a time (the run :func:`gsjax.slam.run` makes), keeping the state before each.
+
+    Args:
+      frames: a stacked :class:`Frame` ([T, ...] leaves) or a sequence of frames.
+      config: the SLAM config.
+      intrinsics: the camera at the frames' resolution.
+      seed: PRNG seed.
+      capacity: the map's starting capacity (default 2 H W); doubled whenever a frame drops a Gaussian.
+      call: ``call(run_chunk, *args)`` runs each frame (the shell's exported program); None: directly.
+
+    Returns:
+      The recorded :class:`Window`.
+    """
+    if isinstance(frames, Frame):
+        frames = [jax.tree_util.tree_map(lambda x, i=i: np.asarray(x)[i], frames) for i in range(len(frames.index))]
+    items = list(frames)
+    if not items:
+        raise ValueError("a hypergradient window needs at least one frame")
+    height, width = intrinsics.height, intrinsics.width
+    state = initial_state(capacity or start_capacity(height, width), height, width,
+                          keyframe_capacity_for(len(items), config.keyframe_every), len(items), seed)
+    states, outputs = [], []
+    for frame in items:
+        stacked, valid = pad_chunk([frame], 1)
+        while True:
+            args = (state, stacked, valid, config, intrinsics, unknown_poses(1))
+            new_state, out = call(run_chunk, *args) if call is not None else run_chunk(*args)
+            out = jax.device_get(out)
+            if dropped_in(out, 1) == 0:
+                break
+            state = grow_capacity(state, 2 * capacity_of(state))
+        states.append(state)
+        outputs.append(out)
+        state = new_state
+    size = capacity_of(state)
+    states = [grow_capacity(s, size) if capacity_of(s) < size else s for s in states]
+    stacked_frames = jax.tree_util.tree_map(lambda *xs: jnp.asarray(np.stack(xs)), *items)
+    return Window(stacked_frames, stack_trees(states), jax.tree_util.tree_map(jnp.asarray, concat_outputs(outputs)))
+
+
+def _stored_map(state: SlamState):
+    """The map the ``residual`` objective renders: the state's, without Gaussians with a non-finite parameter (as
+    the step cleans it) and without injected noise."""
+    return state.gaussians.without_nonfinite()[0]
+
+
+def hypergradient_config(config: SlamConfig, adjoint: str = "unrolled", truncation: str = "frame") -> SlamConfig:
+    """``config`` as a hypergradient's program runs it: its loops differentiable for ``unrolled``
+    (:class:`gsjax.slam.loops.LoopCaps` ``differentiable``), renders on the XLA path, CB-KNN's K straight-through.
+
+    Args:
+      config: the SLAM config.
+      adjoint: ``"unrolled"`` or ``"implicit"``.
+      truncation: ``"frame"`` or ``"window"`` (``window`` needs ``unrolled``).
+
+    Returns:
+      The config (the same values).
+
+    Raises:
+      ValueError: an unknown adjoint or truncation, or ``window`` with ``implicit``.
+    """
+    if adjoint not in ADJOINTS:
+        raise ValueError(f"adjoint must be one of {', '.join(ADJOINTS)}, got {adjoint!r}")
+    if truncation not in TRUNCATIONS:
+        raise ValueError(f"truncation must be one of {', '.join(TRUNCATIONS)}, got {truncation!r}")
+    if truncation == "window" and adjoint != "unrolled":
+        raise ValueError("truncation 'window' differentiates every step of the run as it ran: adjoint 'unrolled' only")
+    caps = dataclasses.replace(loop_caps(config), differentiable=adjoint == "unrolled")
+    params = dataclasses.replace(config.cbknn.params, straight_through_k=True)
+    return dataclasses.replace(config, raster=config.raster.for_forward_mode(),
+                               cbknn=dataclasses.replace(config.cbknn, params=params)).with_caps(caps)
+
+
+def _tracked(state: SlamState, recorded: StepOutputs) -> jax.Array:
+    """[] bool: the frame was tracked (the map existed, its depth was usable, it did not fall back)."""
+    return (state.keyframes.count > 0) & ~recorded.skipped & ~recorded.diverged
+
+
+def _replayed_frame(state: SlamState, frame: Frame, recorded: StepOutputs, config: SlamConfig,
+                    intrinsics: Intrinsics, adjoint: str):
+    """(w2c [4, 4], residual [], tracked [] bool) of one frame tracked again from the recorded state before it."""
+    frame = sanitize_frame(frame)
+    given = frame_input(state, frame, config, intrinsics)
+    tracked = _tracked(state, recorded)
+
+    def pose():
+        if adjoint == "implicit" and config.tracking.optimizer == "adam":
+            return implicit_pose(given.problem, config, recorded.w2c)
+        return orthonormalize(track_guarded(given.problem, config, state.previous_tracking_loss).w2c)
+
+    w2c = jax.lax.cond(tracked, pose, lambda: recorded.w2c)
+    residual = frame_residual(_stored_map(state), w2c, frame.color, frame.depth, intrinsics, config.raster)
+    return w2c, residual, tracked
+
+
+def _window_objective(values: dict[str, jax.Array], window: Window, config: SlamConfig, intrinsics: Intrinsics,
+                      target: AteTarget | None, objective: str, adjoint: str, truncation: str):
+    config = functools.reduce(lambda c, item: replace_path(c, *item), values.items(), config)
+    held = jax.lax.stop_gradient(window)
+    if truncation == "frame":
+        def replay(_, inputs):
+            return None, _replayed_frame(*inputs, config, intrinsics, adjoint)
+
+        _, (w2c, residual, tracked) = jax.lax.scan(replay, None, (held.states, held.frames, held.outputs))
+    else:
+        def run(state, inputs):
+            frame, recorded = inputs
+            tracked = _tracked(state, recorded)
+            new_state, out = step(state, frame, config, intrinsics)
+            clean = sanitize_frame(frame)
+            residual = frame_residual(_stored_map(state), out.w2c, clean.color, clean.depth, intrinsics,
+                                      config.raster)
+            return new_state, (out.w2c, residual, tracked)
+
+        first = jax.tree_util.tree_map(lambda x: x[0], held.states)
+        _, (w2c, residual, tracked) = jax.lax.scan(jax.checkpoint(run), first, (held.frames, held.outputs))
+    value = ate(w2c, target) if objective == "ate" and target is not None else mean_over(residual, tracked)
+    return value, w2c
+
+
+_value_and_grad = jax.jit(jax.value_and_grad(_window_objective, has_aux=True),
+                          static_argnames=("objective", "adjoint", "truncation"))
+
+
+def hypergradient(window: Window, config: SlamConfig, intrinsics: Intrinsics, fields: Sequence[str], *,
+                  objective: str = "residual", adjoint: str = "unrolled", truncation: str = "frame") -> Hypergradient:
+    """The derivative of ``objective`` over ``window`` with respect to ``fields`` of ``config``.
+
+    Args:
+      window: the recorded run (:func:`record`) with ``config``.
+      config: the SLAM config the window was recorded with.
+      intrinsics: the camera.
+      fields: dotted names of traced float fields (:func:`gsjax.config.paths.differentiable_fields`).
+      objective: ``"residual"`` or ``"ate"`` (:mod:`gsjax.slam.objectives`; ``ate`` reads the frames' ground truth).
+      adjoint: ``"unrolled"`` or ``"implicit"`` (module docstring).
+      truncation: ``"frame"`` or ``"window"`` (module docstring).
+
+    Returns:
+      The objective, its derivative per field and the poses.
+
+    Raises:
+      ValueError: an unknown objective, adjoint or truncation, a field without a derivative, or ``ate`` with ground
+        truth on fewer than 3 frames.
+    """
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+    values = {name: jnp.float32(differentiable_entry(config, name).value) for name in fields}
+    target = None
+    if objective == "ate":
+        frames = jax.device_get(window.frames)
+        target = ate_target(frames.c2w, frames.pose_valid, np.asarray(window.outputs.w2c))
+    hyper = hypergradient_config(config, adjoint, truncation)
+    (value, w2c), grads = _value_and_grad(values, window, hyper, intrinsics, target, objective=objective,
+                                          adjoint=adjoint, truncation=truncation)
+    return Hypergradient(float(value), {k: float(v) for k, v in grads.items()}, np.asarray(w2c))
+
+
+def objective_value(window: Window, config: SlamConfig, intrinsics: Intrinsics, objective: str = "residual") -> float:
+    """``objective`` of the recorded run as it ran (no derivative; what a finite difference of runs compares).
+
+    Args:
+      window: the recorded run.
+      config: its SLAM config (the raster settings are read).
+      intrinsics: the camera.
+      objective: ``"residual"`` or ``"ate"``.
+
+    Returns:
+      The objective's value.
+    """
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+    w2c = np.asarray(window.outputs.w2c)
+    if objective == "ate":
+        frames = jax.device_get(window.frames)
+        return float(ate(jnp.asarray(w2c), ate_target(frames.c2w, frames.pose_valid, w2c)))
+    return float(_recorded_residual(window, config.raster, intrinsics))
+
+
+@jax.jit
+def _recorded_residual(window: Window, raster: Any, intrinsics: Intrinsics) -> jax.Array:
+    def one(_, inputs):
+        state, frame, recorded = inputs
+        frame = sanitize_frame(frame)
+        return None, (frame_residual(_stored_map(state), recorded.w2c, frame.color, frame.depth, intrinsics, raster),
+                      _tracked(state, recorded))
+
+    _, (residual, tracked) = jax.lax.scan(one, None, (window.states, window.frames, window.outputs))
+    return mean_over(residual, tracked)

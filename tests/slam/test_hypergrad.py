@@ -1,0 +1,139 @@
+"""Hypergradients (gsjax.slam.hypergrad) against central finite differences of whole SLAM runs, on the tiny room.
+
+A SLAM run is a function of its config with jumps (densification, the best pose among the iterations, the loss's
+pixel mask): its finite differences agree with a derivative only where the run responds smoothly. That is the regime
+of a tracker that has not converged (the learning rates at a tenth of the preset's, 10 iterations): there the
+differences of whole runs taken with 5 % and 20 % steps agree with each other, and the tests compare there. At a
+converged tracker the differences of whole runs change sign between step sizes (docs/guide/hypergradients.md).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gsjax.config.paths import differentiable_entry, differentiable_fields, replace_path
+from gsjax.slam import hypergrad as hg
+from tests.support import tiny_slam as ts
+
+FRAMES = 4
+# Under-converged tracking (a tenth of the cpu preset's 2e-3 at this width, 10 iterations): whole runs respond
+# smoothly to the fields, so finite differences of runs are a derivative to compare with.
+SMOOTH = {"tracking.iters": 10, "tracking.lr_trans": 2e-4, "tracking.lr_rot": 2e-4}
+FIELDS = ("tracking.lr_trans", "tracking.lr_rot", "tracking.lambda_color", "tracking.lambda_depth",
+          "cbknn.lambda_color_keyframe")
+
+
+@pytest.fixture(scope="module")
+def setup():
+    sequence = ts.tiny_sequence(ts.FRAMES)
+    frames = [sequence.read_host(i) for i in range(FRAMES)]
+    config = ts.replaced(ts.tiny_config("paper"), SMOOTH)
+    window = hg.record(frames, config, sequence.intrinsics)
+    return frames, config, sequence.intrinsics, window
+
+
+_differences: dict[str, dict[str, float]] = {}
+
+
+def _run_differences(frames, config, intrinsics, objective, step=0.05):
+    """{field: v * (J(v + h) - J(v - h)) / (2 h)} over whole runs, h = step * v (relative sensitivities)."""
+    if objective in _differences:
+        return _differences[objective]
+    out = _differences[objective] = {}
+    for name in FIELDS:
+        value = float(differentiable_entry(config, name).value)
+        ends = [hg.objective_value(hg.record(frames, replace_path(config, name, value * (1 + s * step)), intrinsics),
+                                   config, intrinsics, objective) for s in (1, -1)]
+        out[name] = (ends[0] - ends[1]) / (2 * step)
+    return out
+
+
+def _relative(result: hg.Hypergradient, config) -> dict[str, float]:
+    return {name: float(differentiable_entry(config, name).value) * result.gradient[name] for name in FIELDS}
+
+
+def test_the_unrolled_hypergradient_through_the_whole_window_has_the_sign_and_size_of_whole_runs(setup):
+    frames, config, intrinsics, window = setup
+    result = hg.hypergradient(window, config, intrinsics, FIELDS, objective="residual", truncation="window")
+    assert result.value == pytest.approx(hg.objective_value(window, config, intrinsics, "residual"), rel=1e-6)
+    exact = _relative(result, config)
+    runs = _run_differences(frames, config, intrinsics, "residual")
+    for name in FIELDS:
+        assert np.sign(exact[name]) == np.sign(runs[name]), (name, exact[name], runs[name])
+    a, b = np.array([exact[n] for n in FIELDS]), np.array([runs[n] for n in FIELDS])
+    assert np.corrcoef(a, b)[0, 1] > 0.9, (exact, runs)
+    # The learning rates dominate here; each is within a factor 2 of its difference of runs.
+    for name in FIELDS[:2]:
+        assert 0.5 < exact[name] / runs[name] < 2.0, (name, exact[name], runs[name])
+
+
+def test_the_frame_truncated_hypergradient_points_as_whole_runs_do_for_the_learning_rates(setup):
+    frames, config, intrinsics, window = setup
+    truncated = _relative(hg.hypergradient(window, config, intrinsics, FIELDS, objective="residual"), config)
+    runs = _run_differences(frames, config, intrinsics, "residual")
+    for name in FIELDS[:2]:  # each frame's own share: the same sign, a smaller size (the map's share is cut)
+        assert np.sign(truncated[name]) == np.sign(runs[name]), (name, truncated[name], runs[name])
+        assert abs(truncated[name]) < abs(runs[name])
+
+
+@pytest.mark.slow
+def test_the_window_hypergradient_of_ate_matches_whole_runs(setup):
+    frames, config, intrinsics, window = setup
+    exact = _relative(hg.hypergradient(window, config, intrinsics, FIELDS, objective="ate", truncation="window"),
+                      config)
+    runs = _run_differences(frames, config, intrinsics, "ate")
+    for name in ("tracking.lr_trans", "tracking.lambda_color", "tracking.lambda_depth"):
+        assert np.sign(exact[name]) == np.sign(runs[name]), (name, exact[name], runs[name])
+        assert 0.5 < exact[name] / runs[name] < 2.0, (name, exact[name], runs[name])
+
+
+def test_the_implicit_hypergradient_keeps_the_recorded_poses_and_gives_learning_rates_no_derivative(setup):
+    _, config, intrinsics, window = setup
+    result = hg.hypergradient(window, config, intrinsics, ("tracking.lr_trans", "tracking.lambda_depth",
+                                                            "cbknn.params.alpha"), adjoint="implicit")
+    np.testing.assert_array_equal(result.w2c, np.asarray(window.outputs.w2c))
+    assert result.gradient["tracking.lr_trans"] == 0.0  # a step size does not move a fixed point
+    assert result.gradient["tracking.lambda_depth"] != 0.0 and np.isfinite(result.gradient["cbknn.params.alpha"])
+
+
+def test_a_field_without_a_derivative_or_a_bad_choice_is_refused_by_name(setup):
+    _, config, intrinsics, window = setup
+    for name, words in (("tracking.iters", "integer"), ("tracking.optimizer", "static"), ("nope.x", "unknown"),
+                        ("tracking.exposure.match", "switch")):
+        with pytest.raises(ValueError, match=words):
+            hg.hypergradient(window, config, intrinsics, (name,))
+    with pytest.raises(ValueError, match="unrolled"):
+        hg.hypergradient(window, config, intrinsics, FIELDS[:1], adjoint="implicit", truncation="window")
+    with pytest.raises(ValueError, match="objective"):
+        hg.hypergradient(window, config, intrinsics, FIELDS[:1], objective="psnr")
+    assert set(FIELDS) <= set(differentiable_fields(config))
+    assert "tracking.iters" not in differentiable_fields(config)
+
+
+def test_the_straight_through_kernel_size_keeps_renders_and_follows_the_next_slot():
+    from gsjax.raster import RasterSettings, render
+    from gsjax.raster.cbknn import CBKNN
+    from tests.support import scenes
+
+    gaussians, w2c, intrinsics = scenes.SCENES["heavy_overlap"](0)
+
+    def image(k0, beta=0.0, straight=True):
+        cbknn = CBKNN(alpha=0.3, k0=k0, beta=beta, straight_through_k=straight)
+        out = render(gaussians, w2c, intrinsics, RasterSettings(), cbknn=cbknn, motion=0.8)
+        return jnp.concatenate([out.color.reshape(-1), out.depth.reshape(-1)])
+
+    plain = np.asarray(image(5.0, 0.4, straight=False))
+    np.testing.assert_array_equal(np.asarray(image(5.0, 0.4)), plain)  # the values are the rounded K's
+    # d/dk0 against the change one more unit of k0 makes (the staircase's secant): the same pixels move alike.
+    _, tangent = jax.jvp(lambda k: image(k, 0.4), (jnp.float32(5.0),), (jnp.float32(1.0),))
+    secant = np.asarray(image(6.0, 0.4, straight=False)) - plain
+    moved = (np.abs(secant) > 1e-6) | (np.abs(np.asarray(tangent)) > 1e-6)
+    assert moved.sum() > 100
+    assert np.corrcoef(np.asarray(tangent)[moved], secant[moved])[0, 1] > 0.75
+    _, by_beta = jax.jvp(lambda b: image(5.0, b), (jnp.float32(0.4),), (jnp.float32(1.0),))
+    assert np.abs(np.asarray(by_beta)).max() > 0  # beta moves K through the motion term
+    _, none = jax.jvp(lambda k: image(k, 0.4, straight=False), (jnp.float32(5.0),), (jnp.float32(1.0),))
+    assert np.abs(np.asarray(none)).max() == 0.0  # without it K is a step function
