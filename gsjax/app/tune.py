@@ -4,7 +4,8 @@ Each step records SLAM over the recording's frames at the current values (one fr
 program of ``gsjax run``), takes the objective's hypergradient (unrolled through tracking, each frame's state held
 fixed: ``truncation="frame"``) and moves the fields by Adam (optax) in the search space: the logarithm of a
 learning rate (a field named ``lr_...``), the value over its start's magnitude for the others; values are kept within
-their declared bounds. The values with the lowest objective seen are the result.
+their declared bounds. A step after which the runs' objective is higher than the lowest seen is taken back: the next
+one starts from the best values with half the step size. The values with the lowest objective seen are the result.
 
 Writes into ``--out``: ``tuned.json`` (``{"fields": {name: value}, ...}``: ``gsjax run --tuned FILE`` applies them,
 as do the dotted overrides ``--name value``), ``tune.csv`` (a row per step: ``step``, ``objective``, each field, each
@@ -47,7 +48,7 @@ class TuneOptions:
       starts: values to start from, by field (the others start at the config's).
       objective: ``"residual"`` or ``"ate"``.
       steps: the Adam steps (``steps + 1`` SLAM runs and hypergradients).
-      step_size: Adam's step in the search space (0.1: a tenth of a rate's e-fold, a tenth of a field's magnitude).
+      step_size: Adam's step in the search space (0.25: a quarter of a rate's e-fold, of another field's start).
       seed: the SLAM runs' PRNG seed.
       overwrite: replace a previous tuning in ``out``.
       progress: show a progress bar.
@@ -58,7 +59,7 @@ class TuneOptions:
     starts: dict[str, float]
     objective: str = "residual"
     steps: int = 10
-    step_size: float = 0.1
+    step_size: float = 0.25
     seed: int = 0
     overwrite: bool = False
     progress: bool = True
@@ -136,68 +137,70 @@ def run_tune(sequence: Sequence, config: SlamConfig, options: TuneOptions,
         rate = name.rsplit(".", 1)[-1].startswith("lr_")
         axes.append(_Axis(name, entry.spec, rate, 1.0 if rate else (abs(value) or 1.0)))
     x = np.array([a.to_x(float(differentiable_entry(config, a.name).value)) for a in axes])
-    optimizer = optax.adam(options.step_size)
+    optimizer = optax.scale_by_adam()
     state = optimizer.init(x)
+    best_x, best_grad, best_value, scale = x, None, math.inf, 1.0
     frames = [sequence.read_host(i) for i in range(len(sequence))]
     intrinsics = sequence.intrinsics
     call = exported_call()
     rows: list[dict] = []
-    best: dict | None = None
-    bar = Progress(options.steps + 1, 0, options.progress)
+    out = Path(options.out)
     started = time.perf_counter()
-    try:
-        for step in range(options.steps + 1):
-            values = {a.name: a.value(float(xi)) for a, xi in zip(axes, x)}
-            current = config
-            for name, value in values.items():
-                current = replace_path(current, name, value)
-            window = hypergrad.record(frames, current, intrinsics, seed=options.seed, call=call)
-            result = hypergrad.hypergradient(window, current, intrinsics, options.fields,
-                                             objective=options.objective)
-            row = dict(step=step, objective=result.value, **values,
-                       **{f"d_{name}": result.gradient[name] for name in options.fields},
-                       seconds=time.perf_counter() - started)
-            rows.append(row)
-            if best is None or result.value < best["objective"]:
-                best = row
-            bar.update(1, objective=f"{result.value:.5g}")
-            if step == options.steps:
-                break
-            grad_x = np.array([result.gradient[a.name] * a.dvalue_dx(values[a.name]) for a in axes])
-            if not np.all(np.isfinite(grad_x)):
-                bar.write(f"step {step}: the hypergradient is not finite ({dict(zip(options.fields, grad_x))}); "
-                          "stopping")
-                break
-            updates, state = optimizer.update(grad_x, state)
-            x = np.asarray(optax.apply_updates(x, updates))
-            x = np.array([a.to_x(a.value(float(xi))) for a, xi in zip(axes, x)])  # back within the bounds
-    finally:
-        bar.close()
-    assert best is not None
-    document = dict(fields={name: best[name] for name in options.fields}, objective=options.objective,
-                    value=best["objective"], step=best["step"], start={name: rows[0][name] for name in options.fields},
-                    start_value=rows[0]["objective"], steps=len(rows) - 1, frames=len(frames),
-                    seconds=time.perf_counter() - started, describe=describe or {}, config=config_to_dict(config))
-    _write(options, rows, document)
+    with locked_run_dir(out):  # held while tuning: one process at a time writes the folder
+        if options.overwrite:
+            clear_previous_run(out, TUNE_FILES)
+        bar = Progress(options.steps + 1, 0, options.progress)
+        try:
+            for step in range(options.steps + 1):
+                values = {a.name: a.value(float(xi)) for a, xi in zip(axes, x)}
+                current = config
+                for name, value in values.items():
+                    current = replace_path(current, name, value)
+                window = hypergrad.record(frames, current, intrinsics, seed=options.seed, call=call)
+                result = hypergrad.hypergradient(window, current, intrinsics, options.fields,
+                                                 objective=options.objective)
+                rows.append(dict(step=step, objective=result.value, **values,
+                                 **{f"d_{name}": result.gradient[name] for name in options.fields},
+                                 seconds=time.perf_counter() - started))
+                _write_steps(out / "tune.csv", rows, options.fields)  # every step: a stopped tuning keeps them
+                bar.update(1, objective=f"{result.value:.5g}")
+                if step == options.steps:
+                    break
+                grad_x = np.array([result.gradient[a.name] * a.dvalue_dx(values[a.name]) for a in axes])
+                if not np.all(np.isfinite(grad_x)):
+                    bar.write(f"step {step}: the hypergradient is not finite "
+                              f"({dict(zip(options.fields, grad_x))}); stopping")
+                    break
+                if result.value <= best_value:
+                    best_x, best_grad, best_value = x, grad_x, result.value
+                else:  # the step raised the runs' objective: back to the best values, half the step
+                    x, grad_x, scale = best_x, best_grad, scale / 2
+                updates, state = optimizer.update(grad_x, state)
+                x = x - options.step_size * scale * np.asarray(updates)
+                x = np.array([a.to_x(a.value(float(xi))) for a, xi in zip(axes, x)])  # back within the bounds
+        finally:
+            bar.close()
+        best = min(rows, key=lambda row: row["objective"])
+        document = dict(fields={name: best[name] for name in options.fields}, objective=options.objective,
+                        value=best["objective"], step=best["step"],
+                        start={name: rows[0][name] for name in options.fields}, start_value=rows[0]["objective"],
+                        steps=len(rows) - 1, frames=len(frames), seconds=time.perf_counter() - started,
+                        describe=describe or {}, config=config_to_dict(config))
+        from gsjax.io.plots import plot_tuning
+
+        plot_tuning(out / "tune.png", rows, list(options.fields), options.objective)
+        atomic_write_json(out / TUNED, document)  # last: a finished tuning has it
     return document
 
 
-def _write(options: TuneOptions, rows: list[dict], document: dict) -> None:
-    from gsjax.io.plots import plot_tuning
-
-    out = Path(options.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with locked_run_dir(out):
-        if options.overwrite:
-            clear_previous_run(out, TUNE_FILES)
-        text = io.StringIO()
-        columns = ["step", "objective", *options.fields, *[f"d_{n}" for n in options.fields], "seconds"]
-        writer = csv.DictWriter(text, fieldnames=columns, lineterminator="\n")
-        writer.writeheader()
-        writer.writerows({k: (f"{v:.9g}" if isinstance(v, float) else v) for k, v in row.items()} for row in rows)
-        atomic_write_text(out / "tune.csv", text.getvalue())
-        plot_tuning(out / "tune.png", rows, list(options.fields), options.objective)
-        atomic_write_json(out / TUNED, document)  # last: a finished tuning has it
+def _write_steps(path: Path, rows: list[dict], fields: tuple[str, ...]) -> None:
+    """``tune.csv``: a row per step so far (rewritten whole, atomically)."""
+    text = io.StringIO()
+    columns = ["step", "objective", *fields, *[f"d_{name}" for name in fields], "seconds"]
+    writer = csv.DictWriter(text, fieldnames=columns, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows({k: (f"{v:.9g}" if isinstance(v, float) else v) for k, v in row.items()} for row in rows)
+    atomic_write_text(path, text.getvalue())
 
 
 def read_tuned(path: str | Path) -> dict[str, float]:

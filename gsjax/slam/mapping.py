@@ -127,7 +127,8 @@ def map_window(
     """
     cfg = config.mapping
     caps = loop_caps(config)
-    optimizer = map_optimizer(config.mapping, jnp.where(first_map, cfg.lr_means_first, cfg.lr_means))
+    optimizer = map_optimizer(config.mapping, jnp.where(first_map, cfg.lr_means_first, cfg.lr_means),
+                              caps.differentiable)
     params = {name: getattr(gaussians, name) for name in MAP_PARAMS}
     smooth_stage = jnp.logical_and(config.cbknn.smooth_renders, config.cbknn.map_keyframes)
     # A view per iteration slot of both loops (the first n of a longer draw are the draw of n, so the views do not

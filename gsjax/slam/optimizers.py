@@ -15,6 +15,10 @@ _Grads = TypeVar("_Grads")
 
 MAP_PARAMS = ("means", "rgb", "logit_opacities", "log_scales")  # the Gaussians' fields mapping optimises
 _NEVER_GIVE_UP = 2**30  # apply_if_finite's limit of consecutive skipped steps: above any frame's iterations
+# Adam's eps_root in a program differentiated through its steps (hypergradients): sqrt(v) has an infinite derivative
+# at v = 0 (a parameter whose gradient is exactly 0, e.g. a Gaussian no view sees), which made 0 * inf = NaN; below
+# any float32 v that is not 0, so the steps' values are the run's.
+DIFFERENTIABLE_EPS_ROOT = 1e-30
 
 
 def finite_only_if_loss_is(loss: jax.Array, grads: _Grads) -> _Grads:
@@ -45,7 +49,7 @@ def nonfinite_steps(opt_state: optax.OptState) -> jax.Array:
     return optax.tree_utils.tree_get(opt_state, "total_notfinite")
 
 
-def pose_optimizer(tracking: TrackingConfig) -> optax.GradientTransformation:
+def pose_optimizer(tracking: TrackingConfig, differentiable: bool = False) -> optax.GradientTransformation:
     """SplaTAM's per-frame Adam on the pose tangent ``{"rho": [3], "phi": [3]}``.
 
     Step ``lr_trans`` on rho and ``lr_rot`` on phi, each decaying exponentially to ``lr_final_ratio`` of itself
@@ -54,6 +58,7 @@ def pose_optimizer(tracking: TrackingConfig) -> optax.GradientTransformation:
 
     Args:
       tracking: the tracking config (its iteration counts, ``lr_trans``, ``lr_rot`` and ``lr_final_ratio``).
+      differentiable: reverse mode will pass its steps (:data:`DIFFERENTIABLE_EPS_ROOT`).
 
     Returns:
       The optax optimizer over ``{"rho", "phi"}``.
@@ -63,13 +68,16 @@ def pose_optimizer(tracking: TrackingConfig) -> optax.GradientTransformation:
 
     def adam(lr):
         decay = lambda count: lr * cfg.lr_final_ratio ** (count / jnp.maximum(total - 1, 1))  # noqa: E731
-        return optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-8), optax.scale_by_learning_rate(decay))
+        return optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-8,
+                                               eps_root=DIFFERENTIABLE_EPS_ROOT if differentiable else 0.0),
+                           optax.scale_by_learning_rate(decay))
 
     groups = optax.multi_transform({"rho": adam(cfg.lr_trans), "phi": adam(cfg.lr_rot)}, {"rho": "rho", "phi": "phi"})
     return optax.apply_if_finite(groups, max_consecutive_errors=_NEVER_GIVE_UP)  # never gives up within a frame
 
 
-def map_optimizer(mapping: MappingConfig, lr_means: float | jax.Array) -> optax.GradientTransformation:
+def map_optimizer(mapping: MappingConfig, lr_means: float | jax.Array,
+                  differentiable: bool = False) -> optax.GradientTransformation:
     """SplaTAM's per-frame Adam (eps 1e-15) on the map parameters, a step size per parameter group.
 
     The parameters are ``{name: array}`` for the names of :data:`MAP_PARAMS`. An update whose gradient is not finite
@@ -80,13 +88,16 @@ def map_optimizer(mapping: MappingConfig, lr_means: float | jax.Array) -> optax.
       mapping: the mapping config (its iteration counts, ``lr_rgb``, ``lr_opacity``, ``lr_scale``,
         ``prune_iters`` and ``skip_step_at_prune``).
       lr_means: the step size of the means (m; may be traced).
+      differentiable: reverse mode will pass its steps (:data:`DIFFERENTIABLE_EPS_ROOT`).
 
     Returns:
       The optax optimizer over ``{"means", "rgb", "logit_opacities", "log_scales"}``.
     """
     cfg = mapping
     rates = dict(means=lr_means, rgb=cfg.lr_rgb, logit_opacities=cfg.lr_opacity, log_scales=cfg.lr_scale)
-    groups = {name: optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15), optax.scale_by_learning_rate(lr))
+    eps_root = DIFFERENTIABLE_EPS_ROOT if differentiable else 0.0
+    groups = {name: optax.chain(optax.scale_by_adam(b1=0.9, b2=0.999, eps=1e-15, eps_root=eps_root),
+                                optax.scale_by_learning_rate(lr))
               for name, lr in rates.items()}
     optimizer = optax.apply_if_finite(optax.multi_transform(groups, {name: name for name in MAP_PARAMS}),
                                       max_consecutive_errors=_NEVER_GIVE_UP)

@@ -345,7 +345,7 @@ def _track_adam(stages: list[Stage], w2c_init, cfg: TrackingConfig, differentiab
     best pose and the progress start again). ``select(delta)`` chooses the contributor slots at iterations 0, R, 2R,
     ... (R = ``tracking.reselect_every``) and the iterations in between composite those (None: every render chooses
     its own). ``differentiable``: the loops take the form reverse mode passes through."""
-    optimizer = pose_optimizer(cfg)
+    optimizer = pose_optimizer(cfg, differentiable)
     post_step = choice_is(cfg.best_pose, "post_step", BEST_POSE)
     tangent = lambda delta: jnp.concatenate([delta["rho"], delta["phi"]])  # noqa: E731
     delta0 = {"rho": jnp.zeros(3, jnp.float32), "phi": jnp.zeros(3, jnp.float32)}

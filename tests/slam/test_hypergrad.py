@@ -137,3 +137,24 @@ def test_the_straight_through_kernel_size_keeps_renders_and_follows_the_next_slo
     assert np.abs(np.asarray(by_beta)).max() > 0  # beta moves K through the motion term
     _, none = jax.jvp(lambda k: image(k, 0.4, straight=False), (jnp.float32(5.0),), (jnp.float32(1.0),))
     assert np.abs(np.asarray(none)).max() == 0.0  # without it K is a step function
+
+
+@pytest.mark.slow
+def test_at_80x60_the_window_hypergradient_has_the_sign_of_whole_runs():
+    """The same comparison on the noisy synthetic room at the cpu preset's 80x60 (its strided iterations too)."""
+    from gsjax.data import open_sequence
+    from gsjax.slam.presets import preset, with_cbknn_mode
+
+    sequence = open_sequence("synthetic", max_frames=FRAMES, downscale=2, sensor_noise=True)
+    frames = [sequence.read_host(i) for i in range(FRAMES)]
+    config = ts.replaced(with_cbknn_mode(preset("cpu", 80), "paper"), SMOOTH)
+    window = hg.record(frames, config, sequence.intrinsics)
+    exact = _relative(hg.hypergradient(window, config, sequence.intrinsics, FIELDS, objective="residual",
+                                       truncation="window"), config)
+    _differences.clear()
+    runs = _run_differences(frames, config, sequence.intrinsics, "residual")
+    _differences.clear()
+    for name in FIELDS[:2]:
+        assert np.sign(exact[name]) == np.sign(runs[name]), (name, exact[name], runs[name])
+    a, b = np.array([exact[n] for n in FIELDS]), np.array([runs[n] for n in FIELDS])
+    assert np.corrcoef(a, b)[0, 1] > 0.9, (exact, runs)

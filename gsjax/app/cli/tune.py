@@ -25,8 +25,9 @@ def add(sub) -> None:
     p.add_argument("--objective", choices=("residual", "ate"), default="residual",
                    help="what to minimise: residual (no ground truth needed; default) or ate (needs it)")
     p.add_argument("--steps", type=common.positive, default=10, help="Adam steps (default 10: 11 SLAM runs)")
-    p.add_argument("--step-size", type=float, default=0.1,
-                   help="Adam's step in the search space (default 0.1: a tenth of an e-fold of a learning rate)")
+    p.add_argument("--step-size", type=float, default=0.25,
+                   help="Adam's step in the search space (default 0.25: a quarter of an e-fold of a learning rate, a "
+                        "quarter of another field's start); halved after a step that raises the objective")
     p.add_argument("--overwrite", action="store_true", help="replace a previous tuning in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run, accepts_overrides=True)

@@ -1,0 +1,74 @@
+"""What a hypergradient costs against the tracking it differentiates, at the working resolution (issue 49).
+
+    python experiments/hypergrad_cost.py --frames 10            # 7-Scenes' kitchen at 80x60, the cpu preset
+
+Records the window (SLAM one frame at a time), then times, each after a warm-up call: every frame's tracking alone
+(the run's program: while loops), and the objective's hypergradient with respect to the tracking learning rates and
+colour weight for each adjoint and truncation. Prints the seconds and the ratio to tracking; the peak memory is the
+process's (run it under ``/usr/bin/time -v``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+
+from gsjax.app.cli import build_parser, common
+from gsjax.app.runtime.cache import enable_compilation_cache, exported_call
+from gsjax.slam import hypergrad
+from gsjax.slam.system import frame_input, sanitize_frame
+from gsjax.slam.tracking import track_guarded
+
+KITCHEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes_redkitchen"
+FIELDS = ("tracking.lr_trans", "tracking.lr_rot", "tracking.lambda_color")
+
+
+def timed(fn, repeats: int = 2) -> float:
+    jax.block_until_ready(fn())  # compile and warm
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--objective", default="ate", choices=("ate", "residual"))
+    options = parser.parse_args()
+    enable_compilation_cache()
+    args = build_parser().parse_args(["run", "--dataset", "7scenes", "--path", str(KITCHEN), "--max-frames",
+                                      str(options.frames), "--out", "unused"])
+    args.overrides = {}
+    sequence, _ = common.open_run_sequence(args)
+    config = common.configure(args, sequence.intrinsics.width)
+    intrinsics = sequence.intrinsics
+    frames = [sequence.read_host(i) for i in range(options.frames)]
+    window = hypergrad.record(frames, config, intrinsics, call=exported_call())
+
+    @jax.jit
+    def tracking(window):
+        def one(_, inputs):
+            state, frame, _ = inputs
+            given = frame_input(state, sanitize_frame(frame), config, intrinsics)
+            return None, track_guarded(given.problem, config, state.previous_tracking_loss).w2c
+        return jax.lax.scan(one, None, (window.states, window.frames, window.outputs))[1]
+
+    base = timed(lambda: tracking(window))
+    print(f"{intrinsics.width}x{intrinsics.height}, {options.frames} frames: tracking alone {base:.2f} s")
+    for adjoint, truncation in (("implicit", "frame"), ("unrolled", "frame"), ("unrolled", "window")):
+        seconds = timed(lambda a=adjoint, t=truncation: hypergrad.hypergradient(
+            window, config, intrinsics, FIELDS, objective=options.objective, adjoint=a, truncation=t).value)
+        result = hypergrad.hypergradient(window, config, intrinsics, FIELDS, objective=options.objective,
+                                         adjoint=adjoint, truncation=truncation)
+        grads = ", ".join(f"{k} {v:.3g}" for k, v in result.gradient.items())
+        print(f"{adjoint} {truncation}: {seconds:.2f} s ({seconds / base:.2f}x tracking); {grads}")
+
+
+if __name__ == "__main__":
+    main()
