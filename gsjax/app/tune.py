@@ -27,7 +27,7 @@ from gsjax.app.run_folder.layout import clear_previous_run, locked_run_dir
 from gsjax.app.runtime.cache import exported_call
 from gsjax.app.runtime.progress import Progress
 from gsjax.config.fields import FieldSpec
-from gsjax.config.paths import differentiable_entry, replace_path
+from gsjax.config.paths import differentiable_entry, replace_path, replace_paths
 from gsjax.config.text import config_to_dict
 from gsjax.data.sequence import Sequence
 from gsjax.io.atomic import atomic_write_json, atomic_write_text
@@ -90,6 +90,11 @@ class _Axis:
         return value if self.log else self.scale
 
 
+def _is_rate(name: str) -> bool:
+    """Whether the field ``name`` is a learning rate (``lr_...``), tuned on a log scale."""
+    return name.rsplit(".", 1)[-1].startswith("lr_")
+
+
 def tuning_start(config: SlamConfig, fields: tuple[str, ...], starts: dict[str, float]) -> SlamConfig:
     """``config`` with ``starts`` set, every field checked: a traced float field, its start within its bounds.
 
@@ -107,7 +112,7 @@ def tuning_start(config: SlamConfig, fields: tuple[str, ...], starts: dict[str, 
         config = replace_path(config, name, float(value))
     for name in fields:
         value = float(differentiable_entry(config, name).value)
-        if name.rsplit(".", 1)[-1].startswith("lr_") and not value > 0:
+        if _is_rate(name) and not value > 0:
             raise ValueError(f"{name} starts at {value:g}: a learning rate is tuned on a log scale, start it above 0")
     return config
 
@@ -130,13 +135,11 @@ def run_tune(sequence: Sequence, config: SlamConfig, options: TuneOptions,
     from gsjax.slam import hypergrad
 
     config = tuning_start(config, options.fields, options.starts)
-    axes = []
-    for name in options.fields:
-        entry = differentiable_entry(config, name)
-        value = float(entry.value)
-        rate = name.rsplit(".", 1)[-1].startswith("lr_")
-        axes.append(_Axis(name, entry.spec, rate, 1.0 if rate else (abs(value) or 1.0)))
-    x = np.array([a.to_x(float(differentiable_entry(config, a.name).value)) for a in axes])
+    entries = [differentiable_entry(config, name) for name in options.fields]
+    starts = [float(entry.value) for entry in entries]
+    axes = [_Axis(name, entry.spec, _is_rate(name), 1.0 if _is_rate(name) else (abs(start) or 1.0))
+            for name, entry, start in zip(options.fields, entries, starts)]
+    x = np.array([axis.to_x(start) for axis, start in zip(axes, starts)])
     optimizer = optax.scale_by_adam()
     state = optimizer.init(x)
     best_x, best_grad, best_value, scale = x, None, math.inf, 1.0
@@ -153,9 +156,7 @@ def run_tune(sequence: Sequence, config: SlamConfig, options: TuneOptions,
         try:
             for step in range(options.steps + 1):
                 values = {a.name: a.value(float(xi)) for a, xi in zip(axes, x)}
-                current = config
-                for name, value in values.items():
-                    current = replace_path(current, name, value)
+                current = replace_paths(config, values)
                 window = hypergrad.record(frames, current, intrinsics, seed=options.seed, call=call)
                 result = hypergrad.hypergradient(window, current, intrinsics, options.fields,
                                                  objective=options.objective)

@@ -4,6 +4,7 @@ derivative (what hypergradients and ``gsjax tune`` take: :mod:`gsjax.slam.hyperg
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import Any, TypeVar
 
 from gsjax.config.fields import FieldEntry, kind_of, walk
@@ -90,3 +91,18 @@ def replace_path(config: _Config, path: str, value: Any) -> _Config:
     if not rest:
         return dataclasses.replace(config, **{head: value})  # type: ignore[type-var]
     return dataclasses.replace(config, **{head: replace_path(getattr(config, head), rest, value)})  # type: ignore
+
+
+def replace_paths(config: _Config, values: Mapping[str, Any]) -> _Config:
+    """``config`` with each field of ``values`` set, in order (:func:`replace_path`).
+
+    Args:
+      config: a config dataclass.
+      values: ``{dotted name: value}``.
+
+    Returns:
+      The new config.
+    """
+    for path, value in values.items():
+        config = replace_path(config, path, value)
+    return config

@@ -243,7 +243,12 @@ def correction_mask(slots: Slots, weights: jax.Array, k_pixel: jax.Array, cbknn:
       [K, P] bool, True for the valid slots of G_p: among the first K_p slots (``"first_k"``), or the K_p with the
         largest weights, at most ``k_max``, ties to the nearer slot (``"top_weight"``).
     """
-    return slots.valid & (_slot_ranks(slots, weights, cbknn) < jax.lax.stop_gradient(k_pixel)[None, :])
+    return _mask_of(slots, _slot_ranks(slots, weights, cbknn), k_pixel)
+
+
+def _mask_of(slots: Slots, ranks: jax.Array, k_pixel: jax.Array) -> jax.Array:
+    """[K, P] bool: the valid slots ranked below their pixel's K_p (:func:`correction_mask`)."""
+    return slots.valid & (ranks < jax.lax.stop_gradient(k_pixel)[None, :])
 
 
 def _slot_ranks(slots: Slots, weights: jax.Array, cbknn: CBKNN) -> jax.Array:
@@ -261,12 +266,10 @@ def _slot_ranks(slots: Slots, weights: jax.Array, cbknn: CBKNN) -> jax.Array:
     return ranks.T
 
 
-def _membership_tangent(slots: Slots, weights: jax.Array, k_pixel: jax.Array, cbknn: CBKNN) -> jax.Array | None:
+def _membership_tangent(slots: Slots, ranks: jax.Array, k_pixel: jax.Array) -> jax.Array:
     """[K, P] zeros that carry the derivative of each slot's membership of G_p with respect to K_p
-    (``straight_through_k``: the slot ranked K_p, the next one after G_p, enters at rate 1); None without it."""
-    if not cbknn.straight_through_k:
-        return None
-    ramp = jnp.clip(k_pixel[None, :] - _slot_ranks(slots, weights, cbknn) + 0.5, 0.0, 1.0)
+    (``straight_through_k``: the slot ranked K_p, the next one after G_p, enters at rate 1)."""
+    ramp = jnp.clip(k_pixel[None, :] - ranks + 0.5, 0.0, 1.0)
     return jnp.where(slots.valid, ramp - jax.lax.stop_gradient(ramp), 0.0)
 
 
@@ -286,8 +289,9 @@ def correct_slots(
     Returns:
       The corrected slots as a :class:`Corrected`, every field [K, P], to composite with the slots' depths.
     """
-    mask = correction_mask(slots, weights, k_pixel, cbknn)
-    tangent = _membership_tangent(slots, weights, k_pixel, cbknn)
+    ranks = _slot_ranks(slots, weights, cbknn)
+    mask = _mask_of(slots, ranks, k_pixel)
+    tangent = _membership_tangent(slots, ranks, k_pixel) if cbknn.straight_through_k else None
     num_slots = alpha.shape[0]
     # first_k only ever corrects the first k_max slots (and the next one's membership only moves K_p's derivative,
     # zero at k_max): work on that prefix and pass the rest through.

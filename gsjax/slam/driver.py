@@ -193,7 +193,15 @@ class RunResult(NamedTuple):
     state: SlamState
 
 
-def _frame_list(frames) -> list[Frame]:
+def host_frames(frames: Frame | Sequence[Frame]) -> list[Frame]:
+    """Frames as a list of host (numpy) frames.
+
+    Args:
+      frames: a stacked :class:`Frame` ([T, ...] leaves), a single frame, or a sequence of frames.
+
+    Returns:
+      One numpy :class:`Frame` per frame.
+    """
     if isinstance(frames, Frame):
         n = np.shape(frames.index)[0] if np.ndim(frames.index) else None
         if n is None:
@@ -238,7 +246,7 @@ def run(
         sequence = cast("FrameSequence", frames)
         read, total = sequence.read_host, len(sequence)
     else:
-        items = _frame_list(frames)
+        items = host_frames(frames)
         read, total = items.__getitem__, len(items)
     if total < 1:
         raise ValueError("gsjax.slam.run needs at least one frame")

@@ -29,7 +29,6 @@ unrounded value's derivative (``CBKNN.straight_through_k``), so that ``k0`` and 
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
@@ -38,10 +37,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from gsjax.camera import Intrinsics, orthonormalize
-from gsjax.config.paths import differentiable_entry, replace_path
-from gsjax.frame import Frame
+from gsjax.config.paths import differentiable_entry, replace_paths
+from gsjax.frame import Frame, stack_frames, to_device
 from gsjax.slam.config import SlamConfig
-from gsjax.slam.driver import capacity_of, concat_outputs, dropped_in, pad_chunk, stack_trees, start_capacity
+from gsjax.slam.driver import (
+    capacity_of,
+    concat_outputs,
+    doubled,
+    dropped_in,
+    host_frames,
+    pad_chunk,
+    stack_trees,
+    start_capacity,
+)
 from gsjax.slam.implicit import implicit_pose
 from gsjax.slam.loops import loop_caps
 from gsjax.slam.objectives import OBJECTIVES, AteTarget, ate, ate_target, frame_residual, mean_over
@@ -96,9 +104,7 @@ def record(frames: Frame | Sequence[Frame], config: SlamConfig, intrinsics: Intr
     Returns:
       The recorded :class:`Window`.
     """
-    if isinstance(frames, Frame):
-        frames = [jax.tree_util.tree_map(lambda x, i=i: np.asarray(x)[i], frames) for i in range(len(frames.index))]
-    items = list(frames)
+    items = host_frames(frames)
     if not items:
         raise ValueError("a hypergradient window needs at least one frame")
     height, width = intrinsics.height, intrinsics.width
@@ -113,14 +119,14 @@ def record(frames: Frame | Sequence[Frame], config: SlamConfig, intrinsics: Intr
             out = jax.device_get(out)
             if dropped_in(out, 1) == 0:
                 break
-            state = grow_capacity(state, 2 * capacity_of(state))
+            state = doubled(state)
         states.append(state)
         outputs.append(out)
         state = new_state
     size = capacity_of(state)
     states = [grow_capacity(s, size) if capacity_of(s) < size else s for s in states]
-    stacked_frames = jax.tree_util.tree_map(lambda *xs: jnp.asarray(np.stack(xs)), *items)
-    return Window(stacked_frames, stack_trees(states), jax.tree_util.tree_map(jnp.asarray, concat_outputs(outputs)))
+    return Window(to_device(stack_frames(items)), stack_trees(states),
+                  jax.tree_util.tree_map(jnp.asarray, concat_outputs(outputs)))
 
 
 def _stored_map(state: SlamState):
@@ -180,7 +186,7 @@ def _replayed_frame(state: SlamState, frame: Frame, recorded: StepOutputs, confi
 
 def _window_objective(values: dict[str, jax.Array], window: Window, config: SlamConfig, intrinsics: Intrinsics,
                       target: AteTarget | None, objective: str, adjoint: str, truncation: str):
-    config = functools.reduce(lambda c, item: replace_path(c, *item), values.items(), config)
+    config = replace_paths(config, values)
     held = jax.lax.stop_gradient(window)
     if truncation == "frame":
         def replay(_, inputs):
@@ -227,13 +233,9 @@ def hypergradient(window: Window, config: SlamConfig, intrinsics: Intrinsics, fi
       ValueError: an unknown objective, adjoint or truncation, a field without a derivative, or ``ate`` with ground
         truth on fewer than 3 frames.
     """
-    if objective not in OBJECTIVES:
-        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
+    _check_objective(objective)
     values = {name: jnp.float32(differentiable_entry(config, name).value) for name in fields}
-    target = None
-    if objective == "ate":
-        frames = jax.device_get(window.frames)
-        target = ate_target(frames.c2w, frames.pose_valid, np.asarray(window.outputs.w2c))
+    target = _ate_target(window) if objective == "ate" else None
     hyper = hypergradient_config(config, adjoint, truncation)
     (value, w2c), grads = _value_and_grad(values, window, hyper, intrinsics, target, objective=objective,
                                           adjoint=adjoint, truncation=truncation)
@@ -252,13 +254,21 @@ def objective_value(window: Window, config: SlamConfig, intrinsics: Intrinsics, 
     Returns:
       The objective's value.
     """
+    _check_objective(objective)
+    if objective == "ate":
+        return float(ate(window.outputs.w2c, _ate_target(window)))
+    return float(_recorded_residual(window, config.raster, intrinsics))
+
+
+def _check_objective(objective: str) -> None:
     if objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}")
-    w2c = np.asarray(window.outputs.w2c)
-    if objective == "ate":
-        frames = jax.device_get(window.frames)
-        return float(ate(jnp.asarray(w2c), ate_target(frames.c2w, frames.pose_valid, w2c)))
-    return float(_recorded_residual(window, config.raster, intrinsics))
+
+
+def _ate_target(window: Window) -> AteTarget:
+    """The ``ate`` objective's ground truth and alignment, from the window's frames and recorded poses."""
+    frames = jax.device_get(window.frames)
+    return ate_target(frames.c2w, frames.pose_valid, np.asarray(window.outputs.w2c))
 
 
 @jax.jit

@@ -138,6 +138,19 @@ def compiles_noise(config: Any) -> bool:
     return config.caps is None or config.caps.noise
 
 
+def is_differentiable(config: Any) -> bool:
+    """Whether a :class:`gsjax.slam.config.SlamConfig`'s program is differentiated through its loops
+    (:attr:`LoopCaps.differentiable`; False when the config has no caps yet).
+
+    Args:
+      config: the SLAM config.
+
+    Returns:
+      A static bool.
+    """
+    return config.caps is not None and config.caps.differentiable
+
+
 def compiles_smoothing(config: Any) -> bool:
     """Whether a :class:`gsjax.slam.config.SlamConfig`'s program carries CB-KNN's per-pixel correction in its renders
     (:attr:`LoopCaps.smoothing`; True when the config has no caps yet).

@@ -35,7 +35,7 @@ from gsjax.config.fields import choice_is
 from gsjax.gaussians import Gaussians
 from gsjax.raster import select_slots
 from gsjax.slam.config import BEST_POSE, CoarseToFine, SlamConfig, TrackingConfig
-from gsjax.slam.loops import LoopCaps, compiles_smoothing, counted_scan, loop_caps
+from gsjax.slam.loops import LoopCaps, compiles_smoothing, counted_scan, is_differentiable, loop_caps
 from gsjax.slam.losses import TrackingTerms, tracking_loss, tracking_residuals
 from gsjax.slam.optimizers import finite_only_if_loss_is, nonfinite_steps, pose_optimizer
 from gsjax.slam.views import render_view, strided_frame, strided_setup, strided_slots
@@ -147,7 +147,7 @@ def tracking_objective(problem: TrackingProblem, config: SlamConfig) -> Tracking
     """
     cfg = config.tracking
     gaussians, color, depth, w2c_init, intrinsics, smooth, gamma = problem
-    if config.caps is None or not config.caps.differentiable:
+    if not is_differentiable(config):
         # (A hypergradient through the whole window lets the map's derivative through: the pose depends on it.)
         gaussians = jax.lax.stop_gradient(gaussians)
     config = dataclasses.replace(config, raster=dataclasses.replace(config.raster, pose_only=True))
@@ -540,7 +540,7 @@ def track_guarded(problem: TrackingProblem, config: SlamConfig, previous_loss: j
 
         zeros = TrackResult(jnp.zeros((4, 4), jnp.float32), jnp.float32(0.0), jnp.int32(0), jnp.int32(0))
         init = (jnp.int32(0), zeros, zeros)
-        if config.caps is not None and config.caps.differentiable:  # (reverse mode passes a scan, not a while loop)
+        if is_differentiable(config):  # (reverse mode passes a scan, not a while loop)
             def attempt_if(carry, _):
                 return jax.lax.cond(another(carry), attempt, lambda c: c, carry), None
 
