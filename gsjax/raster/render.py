@@ -247,7 +247,9 @@ def select_slots(gaussians: Gaussians, w2c: jax.Array, intrinsics: Intrinsics,
       ValueError: naming the argument, as :func:`render`.
     """
     check_render_inputs(gaussians, w2c, intrinsics, settings)
-    return _select(gaussians, jnp.asarray(w2c, jnp.float32), intrinsics, _selection_settings(settings))
+    # A choice, not a function to differentiate: reverse mode through a loop that selects keeps nothing of the walk.
+    gaussians, w2c = jax.lax.stop_gradient((gaussians, jnp.asarray(w2c, jnp.float32)))
+    return _select(gaussians, w2c, intrinsics, _selection_settings(settings))
 
 
 def _selection_settings(settings: RasterSettings) -> RasterSettings:

@@ -106,6 +106,22 @@ def ate_target(gt_c2w: np.ndarray, gt_valid: np.ndarray, w2c: np.ndarray) -> Ate
                      jnp.asarray(alignment.rotation, jnp.float32), jnp.asarray(alignment.translation, jnp.float32))
 
 
+def centre_error(w2c: jax.Array, centre: jax.Array, target: AteTarget) -> jax.Array:
+    """The squared distance (m^2) of one pose's camera centre, aligned by ``target``, from its ground truth.
+
+    Args:
+      w2c: [4, 4] a world-to-camera pose (m).
+      centre: [3] its ground-truth camera centre (m).
+      target: the alignment (:func:`ate_target`; its ``centres`` and ``valid`` are not read).
+
+    Returns:
+      [] the squared error (m^2).
+    """
+    estimate = -w2c[:3, :3].T @ w2c[:3, 3]  # c = -R^T t
+    error = target.rotation @ estimate + target.translation - centre
+    return jnp.sum(error * error)
+
+
 def ate(w2c: jax.Array, target: AteTarget) -> jax.Array:
     """The ``ate`` objective: the RMSE (m) of the camera centres of ``w2c`` [T, 4, 4] under ``target``'s alignment.
 
@@ -116,7 +132,5 @@ def ate(w2c: jax.Array, target: AteTarget) -> jax.Array:
     Returns:
       [] the RMSE (m) over the frames with ground truth.
     """
-    rotation, translation = w2c[:, :3, :3], w2c[:, :3, 3]
-    centres = -jnp.einsum("tji,tj->ti", rotation, translation)  # c = -R^T t
-    error = centres @ target.rotation.T + target.translation - target.centres
-    return jnp.sqrt(mean_over(jnp.sum(error * error, axis=-1), target.valid))
+    squared = jax.vmap(centre_error, in_axes=(0, 0, None))(w2c, target.centres, target)
+    return jnp.sqrt(mean_over(squared, target.valid))
