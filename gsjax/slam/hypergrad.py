@@ -129,10 +129,11 @@ def record(frames: Frame | Sequence[Frame], config: SlamConfig, intrinsics: Intr
                   jax.tree_util.tree_map(jnp.asarray, concat_outputs(outputs)))
 
 
-def _stored_map(state: SlamState):
-    """The map the ``residual`` objective renders: the state's, without Gaussians with a non-finite parameter (as
-    the step cleans it) and without injected noise."""
-    return state.gaussians.without_nonfinite()[0]
+def _held_out_residual(state: SlamState, frame: Frame, w2c: jax.Array, intrinsics: Intrinsics, raster: Any):
+    """[] the ``residual`` of a sanitized ``frame`` at ``w2c``, rendered from the map of the state before it: the
+    state's, without Gaussians with a non-finite parameter (as the step cleans it) and without injected noise."""
+    gaussians = state.gaussians.without_nonfinite()[0]
+    return frame_residual(gaussians, w2c, frame.color, frame.depth, intrinsics, raster)
 
 
 def hypergradient_config(config: SlamConfig, adjoint: str = "unrolled", truncation: str = "frame") -> SlamConfig:
@@ -182,8 +183,7 @@ def _replayed_frame(state: SlamState, frame: Frame, recorded: StepOutputs, confi
         return orthonormalize(track_guarded(given.problem, config, state.previous_tracking_loss).w2c)
 
     w2c = jax.lax.cond(tracked, pose, lambda: recorded.w2c)
-    residual = frame_residual(_stored_map(state), w2c, frame.color, frame.depth, intrinsics, config.raster)
-    return w2c, residual, tracked
+    return w2c, _held_out_residual(state, frame, w2c, intrinsics, config.raster), tracked
 
 
 def _frame_truncated(values: dict[str, jax.Array], window: Window, config: SlamConfig, intrinsics: Intrinsics,
@@ -214,7 +214,7 @@ def _frame_truncated(values: dict[str, jax.Array], window: Window, config: SlamC
     zero = jax.tree.map(jnp.zeros_like, values)
     total, (terms, w2c) = jax.lax.scan(one, zero, (held.states, held.frames, held.outputs, counted, centres))
     n = jnp.maximum(jnp.sum(counted), 1)
-    mean = jnp.sum(terms) / n
+    mean = mean_over(terms, counted)
     value = jnp.sqrt(mean) if target is not None else mean
     scale = 0.5 / (jnp.maximum(value, 1e-30) * n) if target is not None else 1.0 / n  # g'(mean) / n
     return (value, w2c), jax.tree.map(lambda g: g * scale, total)
@@ -230,8 +230,7 @@ def _window_objective(values: dict[str, jax.Array], window: Window, config: Slam
         frame, recorded = inputs
         tracked = _tracked(state, recorded)
         new_state, out = step(state, frame, config, intrinsics)
-        clean = sanitize_frame(frame)
-        residual = frame_residual(_stored_map(state), out.w2c, clean.color, clean.depth, intrinsics, config.raster)
+        residual = _held_out_residual(state, sanitize_frame(frame), out.w2c, intrinsics, config.raster)
         return new_state, (out.w2c, residual, tracked)
 
     first = jax.tree_util.tree_map(lambda x: x[0], held.states)
@@ -308,9 +307,8 @@ def _ate_target(window: Window) -> AteTarget:
 def _recorded_residual(window: Window, raster: Any, intrinsics: Intrinsics) -> jax.Array:
     def one(_, inputs):
         state, frame, recorded = inputs
-        frame = sanitize_frame(frame)
-        return None, (frame_residual(_stored_map(state), recorded.w2c, frame.color, frame.depth, intrinsics, raster),
-                      _tracked(state, recorded))
+        residual = _held_out_residual(state, sanitize_frame(frame), recorded.w2c, intrinsics, raster)
+        return None, (residual, _tracked(state, recorded))
 
     _, (residual, tracked) = jax.lax.scan(one, None, (window.states, window.frames, window.outputs))
     return mean_over(residual, tracked)

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gsjax.camera import Intrinsics, invert_transform
+from gsjax.camera import Intrinsics, camera_center, invert_transform
 from gsjax.eval.trajectory import umeyama_alignment
 from gsjax.gaussians import Gaussians
 from gsjax.raster import RasterSettings
@@ -117,8 +117,7 @@ def centre_error(w2c: jax.Array, centre: jax.Array, target: AteTarget) -> jax.Ar
     Returns:
       [] the squared error (m^2).
     """
-    estimate = -w2c[:3, :3].T @ w2c[:3, 3]  # c = -R^T t
-    error = target.rotation @ estimate + target.translation - centre
+    error = target.rotation @ camera_center(w2c) + target.translation - centre
     return jnp.sum(error * error)
 
 
