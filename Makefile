@@ -47,8 +47,9 @@ lint: install
 	$(BIN)/mypy
 
 # The documentation site (mkdocs.yml, docs/): strict, so a broken link, a missing reference or a docstring that does
-# not render fails the build; `make test` builds it. The tutorials are executed (2-3 min on 2 cores from an empty
-# .cache/, where mkdocs-jupyter keeps them; GSJAX_DOCS_EXECUTE=false skips them: about 5 s). The site goes to site/.
+# not render fails the build; `make test` builds it. The tutorials are executed (about 6 min on 2 cores from an
+# empty .cache/, where mkdocs-jupyter keeps them; 3.5 min of it the hypergradient tutorial; GSJAX_DOCS_EXECUTE=false
+# skips them: about 5 s). The site goes to site/.
 docs: install
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet --site-dir site
 
