@@ -2,15 +2,16 @@
 
     python experiments/hypergrad_cost.py --frames 10            # 7-Scenes' kitchen at 80x60, the cpu preset
 
-Records the window (SLAM one frame at a time), then times, each after a warm-up call: every frame's tracking alone
-(the run's program: while loops), and the objective's hypergradient with respect to the tracking learning rates and
-colour weight for each adjoint and truncation. Prints the seconds and the ratio to tracking; the peak memory is the
-process's (run it under ``/usr/bin/time -v``).
+Records the window (SLAM one frame at a time), then times, each the best of 3 calls after a warm-up call: every
+frame's tracking alone (the run's program: while loops), and the objective's hypergradient with respect to 1-4 of
+the tracking learning rates and loss weights for each adjoint, truncation and mode (forward: a tangent per field).
+Prints the seconds and the ratio to tracking; the peak memory is the process's (run it under ``/usr/bin/time -v``).
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from pathlib import Path
 
@@ -23,7 +24,7 @@ from gsjax.slam.system import frame_input, sanitize_frame
 from gsjax.slam.tracking import track_guarded
 
 KITCHEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes_redkitchen"
-FIELDS = ("tracking.lr_trans", "tracking.lr_rot", "tracking.lambda_color")
+FIELDS = ("tracking.lr_trans", "tracking.lr_rot", "tracking.lambda_color", "tracking.lambda_depth")
 
 
 def timed(fn, repeats: int = 2) -> float:
@@ -40,6 +41,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--objective", default="ate", choices=("ate", "residual"))
+    parser.add_argument("--window", action="store_true", help="also the window truncation (slow)")
     options = parser.parse_args()
     enable_compilation_cache()
     args = build_parser().parse_args(["run", "--dataset", "7scenes", "--path", str(KITCHEN), "--max-frames",
@@ -59,15 +61,19 @@ def main() -> None:
             return None, track_guarded(given.problem, config, state.previous_tracking_loss).w2c
         return jax.lax.scan(one, None, (window.states, window.frames, window.outputs))[1]
 
-    base = timed(lambda: tracking(window))
+    base = timed(lambda: tracking(window), 3)
     print(f"{intrinsics.width}x{intrinsics.height}, {options.frames} frames: tracking alone {base:.2f} s")
-    for adjoint, truncation in (("implicit", "frame"), ("unrolled", "frame"), ("unrolled", "window")):
-        seconds = timed(lambda a=adjoint, t=truncation: hypergrad.hypergradient(
-            window, config, intrinsics, FIELDS, objective=options.objective, adjoint=a, truncation=t).value)
-        result = hypergrad.hypergradient(window, config, intrinsics, FIELDS, objective=options.objective,
-                                         adjoint=adjoint, truncation=truncation)
-        grads = ", ".join(f"{k} {v:.3g}" for k, v in result.gradient.items())
-        print(f"{adjoint} {truncation}: {seconds:.2f} s ({seconds / base:.2f}x tracking); {grads}")
+    cases = [("implicit", "frame", "reverse", 3)] + [("unrolled", "frame", "forward", n) for n in (1, 2, 3, 4)]
+    cases += [("unrolled", "frame", "reverse", 3)] + ([("unrolled", "window", "reverse", 3)] if options.window else [])
+    for adjoint, truncation, mode, count in cases:
+        call = functools.partial(hypergrad.hypergradient, window, config, intrinsics, FIELDS[:count],
+                                 objective=options.objective, adjoint=adjoint, truncation=truncation, mode=mode)
+        seconds = timed(lambda c=call: c().value, 3)
+        grads = ", ".join(f"{k} {v:.3g}" for k, v in call().gradient.items())
+        print(f"{adjoint} {truncation} {mode}, {count} field(s): {seconds:.2f} s ({seconds / base:.2f}x tracking); "
+              f"{grads}")
+    again = timed(lambda: tracking(window), 3)
+    print(f"tracking alone again {again:.2f} s (the ratios are against the first)")
 
 
 if __name__ == "__main__":
