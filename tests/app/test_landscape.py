@@ -167,9 +167,9 @@ def _map_and_frame():
 # mode -> (config, relative tolerance). In paper mode the smoothed render's loss is piecewise at a fine scale (every
 # change of a pixel's K nearest contributors is a small jump, and the shift direction (C - u) / |C - u| carries no
 # gradient by design: its Jacobian is singular where a centre sits on the centroid), so the gradient the tracker
-# follows matches the loss's median slope only roughly: measured up to 19 % off (rz at 0.35 deg: 6.27 vs 7.72 per
-# degree). The renderer's own CB-KNN gradients are checked against float64 finite differences in test_cbknn.
-MODES = {"off": (lambda: config(), 0.1), "paper": (lambda: with_cbknn_mode(config(), "paper"), 0.3)}
+# follows matches the loss's median slope over fine steps only to within 6 % (the test's docstring), against 5 % with
+# `off`. The renderer's own CB-KNN gradients are checked against float64 finite differences in test_cbknn.
+MODES = {"off": (lambda: config(), 0.1), "paper": (lambda: with_cbknn_mode(config(), "paper"), 0.15)}
 
 
 @jax.jit
@@ -198,8 +198,10 @@ def test_landscape_gradients_agree_with_finite_differences_of_its_loss(mode, axi
     """The gradient holds the tracking mask fixed (``stop_gradient``), and CB-KNN's neighbour selection is discrete,
     so the loss has small jumps where a pixel enters the mask or a neighbour set changes (in ``paper`` mode, local
     slopes measured between 0.005 cm steps range from -9 to 27 around a smooth slope of 4). The finite difference
-    is therefore taken of the loss with the mask frozen at the evaluation point, as the median slope over 40 steps
-    of 0.005 units (the median skips the jumps)."""
+    is therefore taken of the loss with the mask frozen at the evaluation point, as the median slope over 160 steps
+    of 0.00125 units (the median skips the jumps; over 40 steps of 0.005 most steps held a jump, and on an AMD EPYC,
+    whose map differs in its last bits, the median there was 1.39 against a gradient of 2.29 at tx 0.35 in ``paper``
+    mode; over 160 it is 2.16, and every case of both modes and all four axes there is within 6 %)."""
     gaussians, color, depth, w2c = _map_and_frame()
     make_config, tolerance = MODES[mode]
     mode_config = make_config()
@@ -209,9 +211,9 @@ def test_landscape_gradients_agree_with_finite_differences_of_its_loss(mode, axi
     intrinsics = tiny_sequence().intrinsics
     problem = TrackingProblem(gaussians, color, depth, w2c, intrinsics, smooth, gamma)
     _, grad = jax.jit(pure.loss_and_grad)(problem, mode_config, direction, at)
-    step = 0.005
+    step = 0.00125
     for centre, g in zip(at, np.asarray(grad)):
-        offsets = centre + step * jnp.arange(-20, 21, dtype=jnp.float32)
+        offsets = centre + step * jnp.arange(-80, 81, dtype=jnp.float32)
         values = np.asarray(frozen_loss(problem, mode_config, direction, offsets, centre), np.float64)
         fd = float(np.median(np.diff(values) / np.diff(np.asarray(offsets, np.float64))))
         assert abs(g - fd) <= tolerance * abs(fd) + 0.3, (float(centre), g, fd)
