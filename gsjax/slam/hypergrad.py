@@ -158,7 +158,7 @@ def hypergradient_config(config: SlamConfig, adjoint: str = "unrolled", truncati
       The config (the same values).
 
     Raises:
-      ValueError: an unknown adjoint or truncation, or ``window`` with ``implicit``.
+      ValueError: an unknown adjoint, truncation or mode, or ``window`` with ``implicit``.
     """
     if adjoint not in ADJOINTS:
         raise ValueError(f"adjoint must be one of {', '.join(ADJOINTS)}, got {adjoint!r}")
@@ -166,6 +166,8 @@ def hypergradient_config(config: SlamConfig, adjoint: str = "unrolled", truncati
         raise ValueError(f"truncation must be one of {', '.join(TRUNCATIONS)}, got {truncation!r}")
     if truncation == "window" and adjoint != "unrolled":
         raise ValueError("truncation 'window' differentiates every step of the run as it ran: adjoint 'unrolled' only")
+    if mode not in ("forward", "reverse"):
+        raise ValueError(f"mode must be 'forward' or 'reverse', got {mode!r}")
     # Caps at the counts themselves: a scan runs its whole cap (cond-skipped iterations cost in reverse mode).
     caps = LoopCaps.of(config, exact=True) or loop_caps(config)
     caps = dataclasses.replace(caps, differentiable=adjoint == "unrolled" and mode == "reverse")
