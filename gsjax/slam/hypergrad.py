@@ -221,10 +221,7 @@ def _frame_truncated(values: dict[str, jax.Array], window: Window, config: SlamC
             value = centre_error(w2c, centre, target) if target is not None else residual
             return jnp.where(count, value, 0.0), w2c
 
-        if mode == "forward":
-            (value, w2c), grad = _pushed(term, values)
-        else:
-            (value, w2c), grad = jax.value_and_grad(term, has_aux=True)(values)
+        (value, w2c), grad = _value_and_derivative(term, values, mode)
         return jax.tree.map(jnp.add, total, grad), (value, w2c)
 
     zero = jax.tree.map(jnp.zeros_like, values)
@@ -236,9 +233,11 @@ def _frame_truncated(values: dict[str, jax.Array], window: Window, config: SlamC
     return (value, w2c), jax.tree.map(lambda g: g * scale, total)
 
 
-def _pushed(fn: Callable, values: dict[str, jax.Array]):
-    """(``fn(values)``, {field: d fn(values)[0] / d field}) by forward mode: one tangent per field, vmapped (the
-    primal computed once); ``fn`` returns (scalar, aux)."""
+def _value_and_derivative(fn: Callable, values: dict[str, jax.Array], mode: str):
+    """(``fn(values)``, {field: d fn(values)[0] / d field}) for ``fn`` returning (scalar, aux): reverse mode, or
+    forward mode with one tangent per field, vmapped (the primal computed once)."""
+    if mode != "forward":
+        return jax.value_and_grad(fn, has_aux=True)(values)
     names = list(values)
     basis = {k: jnp.asarray([float(k == n) for n in names], jnp.float32) for k in values}
     push = jax.vmap(lambda t: jax.jvp(fn, (values,), (t,)), out_axes=((None, None), (0, 0)))
@@ -269,7 +268,7 @@ def _window_objective(values: dict[str, jax.Array], window: Window, config: Slam
 def _window_value_and_grad(values, window, config, intrinsics, target, objective, mode="reverse"):
     fn = functools.partial(_window_objective, window=window, config=config, intrinsics=intrinsics, target=target,
                            objective=objective)
-    return _pushed(fn, values) if mode == "forward" else jax.value_and_grad(fn, has_aux=True)(values)
+    return _value_and_derivative(fn, values, mode)
 
 
 _frame_value_and_grad = jax.jit(_frame_truncated, static_argnames=("adjoint", "mode"))
