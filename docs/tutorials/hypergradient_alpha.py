@@ -53,13 +53,12 @@ steps = (0.05,) if TINY else (0.02, 0.05, 0.1)
 replayed = {alpha0: result.value}
 for h in steps:
     for alpha in (alpha0 - h, alpha0 + h):
-        replayed[alpha] = hypergrad.hypergradient(window, replace_path(config, ALPHA, alpha), intrinsics, [ALPHA],
-                                                  objective="ate", adjoint="implicit").value
+        replayed[alpha] = hypergrad.replayed_objective(window, replace_path(config, ALPHA, alpha), intrinsics, "ate")
 differences = {h: 100 * (replayed[alpha0 + h] - replayed[alpha0 - h]) / (2 * h) for h in steps}
 print("h (px) | central difference (cm/px) | hypergradient (cm/px)")
 for h, difference in differences.items():
     print(f"{h} | {difference:+.4f} | {slope:+.4f}")
-if not TINY:  # measured at 80x60: -0.0206 / -0.0115 / -0.0171 against -0.0213
+if not TINY:  # measured at 80x60: -0.0206 / -0.0115 / -0.0171 against -0.0243
     assert all(np.sign(d) == np.sign(slope) and 0.4 < d / slope < 2.5 for d in differences.values())
 
 # %%
@@ -76,9 +75,10 @@ plt.show()
 
 # %% [markdown]
 # Whole runs at `alpha +- h` differ from that function: there `alpha` also moves the map each keyframe's mapping
-# builds, and every frame tracked against it after. The `frame` truncation does not follow that path (the
-# `window` truncation does, and over many mapping optimisations its exact derivative is too chaotic to use: the
-# guide's "What to expect"). Here two whole runs at the widest step:
+# builds, and every frame tracked against it after, and the run has jumps of its own (the pixels that densification
+# fills, the keyframes' overlap). The `frame` truncation does not follow the map; `truncation="window"` does (with
+# `adjoint="implicit"`: each pose at its fixed point on the map the earlier frames' mapping built, that mapping
+# differentiated). Here two whole runs at the widest step:
 
 # %%
 h = steps[-1]
@@ -88,8 +88,9 @@ print(f"whole runs' central difference at h = {h} px: {100 * (runs[0] - runs[1])
       f"(the frames tracked again: {differences[h]:+.4f}; the hypergradient {slope:+.4f})")
 
 # %% [markdown]
-# Measured when this page was written (80x60, 2 CPU cores): the hypergradient -0.0213 cm/px; the frames tracked
-# again -0.0206 / -0.0115 / -0.0171 cm/px at h = 0.02 / 0.05 / 0.1 px; whole runs +0.127 cm/px at 0.1 px. The
-# derivative is that of the function it differentiates, and that function is not the whole run: through the map,
-# a larger `alpha` costs these frames more than it saves them at their own tracking. `gsjax tune` follows the `frame`
-# derivative; the guide's [hypergradients and tune](../guide/tuning.md) says what that finds against a grid.
+# Measured (80x60, 2 CPU cores): the hypergradient -0.0243 cm/px; the frames tracked again -0.0206 / -0.0115 /
+# -0.0171 cm/px at h = 0.02 / 0.05 / 0.1 px; following the map (`window`) -0.026 cm/px. Whole runs give -0.116 /
+# +0.376 / +0.127 cm/px at h = 0.01 / 0.04 / 0.1 px: their sign changes with the step, so for `alpha` here a whole
+# run's difference is not a derivative to check against (for the loss weights it is, and the implicit derivative has
+# its sign: `experiments/README.md`). `gsjax tune` follows the `frame` derivative; the guide's [hypergradients and
+# tune](../guide/tuning.md) says what that finds against a grid.

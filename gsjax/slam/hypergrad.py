@@ -10,17 +10,18 @@ derivative is taken one of two ways (``adjoint``):
 * ``unrolled``: reverse mode through the tracker's iterations (loops as scans over their caps, each iteration
   checkpointed; :class:`gsjax.slam.loops.LoopCaps` ``differentiable``): what a finite number of iterations ends at,
   so it has the derivative of the fields that move that end and not the fixed point (learning rates, their decay);
-* ``implicit``: the pose as the fixed point of its loss, ``-H^-1 d2L / (d xi d theta)``: for ``adam`` at the recorded
-  pose (:func:`gsjax.slam.implicit.implicit_pose`, no iteration replayed), for ``lm`` optimistix's implicit adjoint.
-  Fields that do not move the fixed point (learning rates) have no implicit derivative.
+* ``implicit``: the pose as the fixed point of its loss, ``-H^-1 d2L / (d xi d theta)``, at the recorded pose
+  (:func:`gsjax.slam.implicit.implicit_pose`: no iteration replayed; the loss the tracker minimised, ``adam``'s or
+  ``lm``'s). Fields that do not move the fixed point (learning rates) have no implicit derivative.
 
 The map's dependence on the fields is cut (``truncation``):
 
 * ``frame``: each frame's pose is differentiated with the state before it held fixed (its map, its prediction, its
   keyframes): the objective's derivative sums each frame's own. Only tracking is replayed;
 * ``window``: nothing is held: the derivative passes every step (densification's poses, the mapping iterations, the
-  constant-velocity predictions, CB-KNN's motion) from the first frame on. Unrolled only; a window's whole SLAM in
-  reverse mode.
+  constant-velocity predictions, CB-KNN's motion) from the first frame on: a window's whole SLAM differentiated, the
+  mapping iterations unrolled. With ``implicit`` each frame's pose is its fixed point on the replayed map (whose
+  derivative the earlier frames' mapping carries), the tracker's iterations not replayed.
 
 Either mode gives the same derivative (``mode``): reverse mode (one backward pass, every field at once) or forward
 mode (a tangent per field pushed with the iterations, through the run's own while loops; no iteration's carries
@@ -62,7 +63,7 @@ from gsjax.slam.loops import LoopCaps, loop_caps
 from gsjax.slam.objectives import OBJECTIVES, AteTarget, ate, ate_target, centre_error, frame_residual, mean_over
 from gsjax.slam.state import SlamState, grow_capacity, initial_state, keyframe_capacity_for
 from gsjax.slam.system import StepOutputs, frame_input, run_chunk, sanitize_frame, step, unknown_poses
-from gsjax.slam.tracking import track_guarded
+from gsjax.slam.tracking import GuardedTrack, track_guarded
 
 ADJOINTS = ("unrolled", "implicit")
 TRUNCATIONS = ("frame", "window")
@@ -151,26 +152,25 @@ def hypergradient_config(config: SlamConfig, adjoint: str = "unrolled", truncati
     Args:
       config: the SLAM config.
       adjoint: ``"unrolled"`` or ``"implicit"``.
-      truncation: ``"frame"`` or ``"window"`` (``window`` needs ``unrolled``).
+      truncation: ``"frame"`` or ``"window"`` (``window`` runs mapping's loops differentiable in reverse mode).
       mode: ``"reverse"`` or ``"forward"`` (forward mode passes the run's while loops).
 
     Returns:
       The config (the same values).
 
     Raises:
-      ValueError: an unknown adjoint, truncation or mode, or ``window`` with ``implicit``.
+      ValueError: an unknown adjoint, truncation or mode.
     """
     if adjoint not in ADJOINTS:
         raise ValueError(f"adjoint must be one of {', '.join(ADJOINTS)}, got {adjoint!r}")
     if truncation not in TRUNCATIONS:
         raise ValueError(f"truncation must be one of {', '.join(TRUNCATIONS)}, got {truncation!r}")
-    if truncation == "window" and adjoint != "unrolled":
-        raise ValueError("truncation 'window' differentiates every step of the run as it ran: adjoint 'unrolled' only")
     if mode not in ("forward", "reverse"):
         raise ValueError(f"mode must be 'forward' or 'reverse', got {mode!r}")
     # Caps at the counts themselves: a scan runs its whole cap (cond-skipped iterations cost in reverse mode).
     caps = LoopCaps.of(config, exact=True) or loop_caps(config)
-    caps = dataclasses.replace(caps, differentiable=adjoint == "unrolled" and mode == "reverse")
+    caps = dataclasses.replace(caps, differentiable=(adjoint == "unrolled" or truncation == "window")
+                               and mode == "reverse")
     params = dataclasses.replace(config.cbknn.params, straight_through_k=True)
     return dataclasses.replace(config, raster=config.raster.for_forward_mode(),
                                cbknn=dataclasses.replace(config.cbknn, params=params)).with_caps(caps)
@@ -189,7 +189,7 @@ def _replayed_frame(state: SlamState, frame: Frame, recorded: StepOutputs, confi
     tracked = _tracked(state, recorded)
 
     def pose():
-        if adjoint == "implicit" and config.tracking.optimizer == "adam":
+        if adjoint == "implicit":
             return implicit_pose(given.problem, config, recorded.w2c)
         return orthonormalize(track_guarded(given.problem, config, state.previous_tracking_loss).w2c)
 
@@ -236,6 +236,8 @@ def _frame_truncated(values: dict[str, jax.Array], window: Window, config: SlamC
 def _value_and_derivative(fn: Callable, values: dict[str, jax.Array], mode: str):
     """(``fn(values)``, {field: d fn(values)[0] / d field}) for ``fn`` returning (scalar, aux): reverse mode, or
     forward mode with one tangent per field, vmapped (the primal computed once)."""
+    if not values:  # nothing to differentiate: the value alone
+        return fn(values), {}
     if mode != "forward":
         return jax.value_and_grad(fn, has_aux=True)(values)
     names = list(values)
@@ -245,8 +247,21 @@ def _value_and_derivative(fn: Callable, values: dict[str, jax.Array], mode: str)
     return primal, {name: tangent[i] for i, name in enumerate(names)}
 
 
+def _fixed_point_tracker(config: SlamConfig, recorded: StepOutputs) -> Callable:
+    """:func:`step`'s tracker for ``implicit`` ``window``: the recorded pose carrying its fixed point's derivative on
+    the map it is given (a frame that fell back keeps its prediction, no derivative)."""
+
+    def track(problem, _previous):
+        w2c = jax.lax.cond(recorded.diverged, lambda: recorded.w2c,
+                           lambda: implicit_pose(problem, config, recorded.w2c))
+        return GuardedTrack(w2c, recorded.tracking_loss, recorded.nonfinite, recorded.retried, recorded.diverged,
+                            recorded.tracking_iters)
+
+    return track
+
+
 def _window_objective(values: dict[str, jax.Array], window: Window, config: SlamConfig, intrinsics: Intrinsics,
-                      target: AteTarget | None, objective: str):
+                      target: AteTarget | None, objective: str, adjoint: str):
     """(objective, w2c [T, 4, 4]) of the whole window run again from its first state (the ``window`` truncation)."""
     config = replace_paths(config, values)
     held = jax.lax.stop_gradient(window)
@@ -254,7 +269,8 @@ def _window_objective(values: dict[str, jax.Array], window: Window, config: Slam
     def run(state, inputs):
         frame, recorded = inputs
         tracked = _tracked(state, recorded)
-        new_state, out = step(state, frame, config, intrinsics)
+        track = _fixed_point_tracker(config, recorded) if adjoint == "implicit" else None
+        new_state, out = step(state, frame, config, intrinsics, track=track)
         residual = _held_out_residual(state, sanitize_frame(frame), out.w2c, intrinsics, config.raster)
         return new_state, (out.w2c, residual, tracked)
 
@@ -264,10 +280,10 @@ def _window_objective(values: dict[str, jax.Array], window: Window, config: Slam
     return value, w2c
 
 
-@functools.partial(jax.jit, static_argnames=("objective", "mode"))
-def _window_value_and_grad(values, window, config, intrinsics, target, objective, mode="reverse"):
+@functools.partial(jax.jit, static_argnames=("objective", "adjoint", "mode"))
+def _window_value_and_grad(values, window, config, intrinsics, target, objective, adjoint="unrolled", mode="reverse"):
     fn = functools.partial(_window_objective, window=window, config=config, intrinsics=intrinsics, target=target,
-                           objective=objective)
+                           objective=objective, adjoint=adjoint)
     return _value_and_derivative(fn, values, mode)
 
 
@@ -310,17 +326,34 @@ def hypergradient(window: Window, config: SlamConfig, intrinsics: Intrinsics, fi
     if mode == "auto":
         forward = adjoint == "unrolled" and truncation == "frame" and len(values) <= FORWARD_FIELDS and not lm
         mode = "forward" if forward else "reverse"
-    if mode == "forward" and adjoint == "unrolled" and lm:  # optimistix differentiates its while loop implicitly
+    if mode == "forward" and adjoint == "unrolled" and lm and values:  # optimistix: its while loop implicitly
         raise ValueError("the LM tracker's unrolled derivative is reverse mode only (mode 'reverse' or 'auto')")
-    mode = mode if values else "reverse"  # no field: nothing to push
+    mode = mode if values else "forward"  # no field: the value alone, through the run's own loops
     hyper = hypergradient_config(config, adjoint, truncation, mode)
     if truncation == "frame":
         (value, w2c), grads = _frame_value_and_grad(values, window, hyper, intrinsics, target, adjoint=adjoint,
                                                     mode=mode)
     else:
         (value, w2c), grads = _window_value_and_grad(values, window, hyper, intrinsics, target, objective=objective,
-                                                     mode=mode)
+                                                     adjoint=adjoint, mode=mode)
     return Hypergradient(float(value), {k: float(v) for k, v in grads.items()}, np.asarray(w2c))
+
+
+def replayed_objective(window: Window, config: SlamConfig, intrinsics: Intrinsics,
+                       objective: str = "residual") -> float:
+    """``objective`` with every frame tracked again (``config``'s tracking) from its recorded state: the function whose
+    derivative the ``frame`` truncation takes, what its central differences compare with (no derivative taken).
+
+    Args:
+      window: the recorded run.
+      config: the SLAM config to track with (the recorded one's, or another value of its traced fields).
+      intrinsics: the camera.
+      objective: ``"residual"`` or ``"ate"``.
+
+    Returns:
+      The objective's value at the replayed poses.
+    """
+    return hypergradient(window, config, intrinsics, (), objective=objective, adjoint="unrolled").value
 
 
 def objective_value(window: Window, config: SlamConfig, intrinsics: Intrinsics, objective: str = "residual") -> float:

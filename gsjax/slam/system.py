@@ -18,6 +18,7 @@ empty, and that frame initialises it.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
@@ -146,7 +147,8 @@ def _is_keyframe(state: SlamState, every: int) -> jax.Array:
 
 
 def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics,
-         pose: jax.Array | None = None) -> tuple[SlamState, StepOutputs]:
+         pose: jax.Array | None = None, *,
+         track: Callable[[TrackingProblem, jax.Array], GuardedTrack] | None = None) -> tuple[SlamState, StepOutputs]:
     """Process one frame: track, densify, map, store a keyframe (pure, jit-able).
 
     Args:
@@ -157,6 +159,8 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
       pose: [4, 4] world-to-camera pose (m) to map the frame at instead of tracking it (mapping-only studies,
         e.g. a map built from ground truth); a pose with a non-finite entry (NaN: not known) or None tracks. A known
         pose is a traced choice: one program maps at known poses and tracks.
+      track: ``track(problem, previous_tracking_loss)`` tracks a frame once the map exists; None:
+        :func:`gsjax.slam.tracking.track_guarded` with ``config`` (hypergradients pass the implicit fixed point).
 
     Returns:
       state: the state after the frame.
@@ -164,7 +168,7 @@ def step(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrins
     """
     frame = sanitize_frame(frame)
     usable = jnp.mean(frame.depth > 0) >= config.min_valid_depth
-    return jax.lax.cond(usable, lambda s: _process(s, frame, config, intrinsics, pose),
+    return jax.lax.cond(usable, lambda s: _process(s, frame, config, intrinsics, pose, track),
                         lambda s: _coast(s, frame, config, pose), state)
 
 
@@ -242,7 +246,7 @@ def frame_input(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: 
     return FrameInput(state, frame, problem, freed)
 
 
-def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics, pose):
+def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Intrinsics, pose, track):
     state, frame, problem, freed_before = frame_input(state, frame, config, intrinsics)
     t = state.frame
     started = state.keyframes.count > 0  # the map exists: a frame with depth has been processed
@@ -254,6 +258,8 @@ def _process(state: SlamState, frame: Frame, config: SlamConfig, intrinsics: Int
         known = _known(pose)
 
         def do_track():
+            if track is not None:
+                return track(problem, state.previous_tracking_loss)
             return track_guarded(problem, config, state.previous_tracking_loss)
 
         def at(w2c):

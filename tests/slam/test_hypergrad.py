@@ -133,14 +133,29 @@ def test_the_implicit_hypergradient_keeps_the_recorded_poses_and_gives_learning_
     assert result.gradient["tracking.lambda_depth"] != 0.0 and np.isfinite(result.gradient["cbknn.params.alpha"])
 
 
+@pytest.mark.parametrize("truncation", ["frame", "window"])
+def test_the_implicit_fixed_point_does_not_move_when_every_loss_weight_is_scaled_alike(setup, truncation):
+    """Scaling the tracking loss scales its gradient and Hessian alike: its fixed point stays, so the weights'
+    relative derivatives sum to 0. (The Newton step's end's derivative; -H^-1 dg alone moved it by a whole Newton
+    step, as large as each weight's own on this room.) The window's mapping carries the map's share."""
+    _, config, intrinsics, window = setup
+    weights = FIELDS[2:]  # lambda_color, lambda_depth, lambda_color_keyframe: every weight of the tracking loss
+    for objective in ("residual", "ate"):
+        result = hg.hypergradient(window, config, intrinsics, (*weights, "cbknn.params.alpha"), objective=objective,
+                                  adjoint="implicit", truncation=truncation)
+        relative = np.array([float(differentiable_entry(config, n).value) * result.gradient[n] for n in weights])
+        assert np.abs(relative).max() > 0
+        assert abs(relative.sum()) < 1e-3 * np.abs(relative).max(), (objective, relative)
+
+
 def test_a_field_without_a_derivative_or_a_bad_choice_is_refused_by_name(setup):
     _, config, intrinsics, window = setup
     for name, words in (("tracking.iters", "integer"), ("tracking.optimizer", "static"), ("nope.x", "unknown"),
                         ("tracking.exposure.match", "switch")):
         with pytest.raises(ValueError, match=words):
             hg.hypergradient(window, config, intrinsics, (name,))
-    with pytest.raises(ValueError, match="unrolled"):
-        hg.hypergradient(window, config, intrinsics, FIELDS[:1], adjoint="implicit", truncation="window")
+    with pytest.raises(ValueError, match="truncation"):
+        hg.hypergradient(window, config, intrinsics, FIELDS[:1], truncation="map")
     with pytest.raises(ValueError, match="objective"):
         hg.hypergradient(window, config, intrinsics, FIELDS[:1], objective="psnr")
     with pytest.raises(ValueError, match="mode"):
@@ -220,3 +235,31 @@ def test_at_80x60_the_window_hypergradient_has_the_sign_of_whole_runs(room80):
         assert np.sign(exact[name]) == np.sign(runs[0.05][name]), (name, exact[name], runs[0.05][name])
     a, b = np.array([exact[n] for n in FIELDS]), np.array([runs[0.05][n] for n in FIELDS])
     assert np.corrcoef(a, b)[0, 1] > 0.9, (exact, runs)
+
+
+@pytest.mark.slow
+def test_at_80x60_the_implicit_hypergradient_of_ate_has_the_sign_of_whole_runs_for_the_loss_weights():
+    """The tutorial's setting (the noisy room, 8 frames, LM: poses are fixed points). Measured (relative, x 1e3):
+    lambda_color -0.41, lambda_depth +0.25, lambda_color_keyframe +0.16 (window: the same within 0.01) against whole
+    runs' -1.87 / +0.54 / +0.18 at 5 % steps and -0.38 / +0.16 / +0.17 at 20 %; the runs' differences for CB-KNN's
+    alpha and K0 change sign between the steps (experiments/README.md), so they are not compared."""
+    from gsjax.config.text import apply_overrides
+    from gsjax.data import open_sequence
+    from gsjax.slam.presets import preset, with_cbknn_mode
+
+    sequence = open_sequence("synthetic", max_frames=8, downscale=2, sensor_noise=True)
+    frames, intrinsics = [sequence.read_host(i) for i in range(len(sequence))], sequence.intrinsics
+    config = apply_overrides(with_cbknn_mode(preset("cpu", intrinsics.width), "paper"),
+                             {"tracking.optimizer": "lm", "tracking.iters": "20", "tracking.strided_iters": "0",
+                              "tracking.reselect_every": "1"})
+    weights = ("tracking.lambda_color", "tracking.lambda_depth", "cbknn.lambda_color_keyframe")
+    window = hg.record(frames, config, intrinsics)
+    result = hg.hypergradient(window, config, intrinsics, weights, objective="ate", adjoint="implicit")
+    for name in weights:
+        value = float(differentiable_entry(config, name).value)
+        exact = value * result.gradient[name]
+        for step in (0.05, 0.2):
+            ends = [hg.objective_value(hg.record(frames, replace_path(config, name, value * (1 + s * step)),
+                                                 intrinsics), config, intrinsics, "ate") for s in (1, -1)]
+            runs = (ends[0] - ends[1]) / (2 * step)
+            assert np.sign(exact) == np.sign(runs), (name, step, exact, runs)
