@@ -109,6 +109,9 @@ def test_forward_mode_gives_the_derivative_reverse_mode_gives(setup):
     forward = hg.hypergradient(window, config, intrinsics, FIELDS, objective="residual", mode="forward")
     assert forward.value == pytest.approx(reverse.value, rel=1e-6)
     np.testing.assert_allclose(forward.w2c, reverse.w2c, atol=1e-6)
+    # The function both differentiate, its value alone: the frames tracked again reproduce the recorded run.
+    assert hg.replayed_objective(window, config, intrinsics) == pytest.approx(reverse.value, rel=1e-6)
+    assert reverse.value == pytest.approx(hg.objective_value(window, config, intrinsics), rel=1e-4)
     for name in FIELDS:
         assert forward.gradient[name] == pytest.approx(reverse.gradient[name], rel=1e-4, abs=1e-10), name
 
