@@ -5,7 +5,8 @@
 Records the window (SLAM one frame at a time), then times, each the best of 3 calls after a warm-up call: every
 frame's tracking alone (the run's program: while loops), and the objective's hypergradient with respect to 1-4 of
 the tracking learning rates and loss weights for each adjoint, truncation and mode (forward: a tangent per field;
-``--implicit-only``: the implicit adjoint alone). Prints the seconds and the ratio to tracking; the peak memory is the process's (run it under ``/usr/bin/time -v``).
+``--implicit-only``: the implicit adjoint alone). Prints the seconds and the ratio to tracking; the peak memory is
+the process's (run it under ``/usr/bin/time -v``).
 """
 
 from __future__ import annotations
