@@ -312,3 +312,31 @@ def test_with_map_noise_the_window_hypergradient_has_the_sign_of_whole_runs_for_
     assert steady[k0] and agree[k0], (exact[k0], runs[0.05][k0], runs[0.2][k0])
     for differences in runs.values():
         assert np.corrcoef(exact, differences)[0, 1] > 0.8, (exact, differences)
+
+
+@pytest.mark.slow
+def test_at_80x60_with_map_noise_the_implicit_hypergradient_of_ate_has_the_sign_of_whole_runs_for_cbknn():
+    """LM's fixed points with 1 cm of fresh map noise and 1 cm of depth noise (the noisy room at 80x60, 8 frames;
+    `experiments/hypergrad_check.py --regime lm+noise`), where whole runs' ATE responds to CB-KNN. Measured (relative,
+    x 1e3): alpha +0.138 against the runs' +1.34 / +0.110 at 5 % / 20 % steps, K0 +0.172 against +1.09 / +1.81,
+    lambda_color_keyframe +0.319 against +0.268 / +0.342 (beta's sign differs: +0.067 against -2.6 / -0.16)."""
+    from gsjax.config.text import apply_overrides
+    from gsjax.data import open_sequence
+    from gsjax.slam.presets import preset, with_cbknn_mode
+
+    sequence = open_sequence("synthetic", max_frames=8, downscale=2, sensor_noise=True)
+    frames, intrinsics = [sequence.read_host(i) for i in range(len(sequence))], sequence.intrinsics
+    config = apply_overrides(with_cbknn_mode(preset("cpu", intrinsics.width), "paper"),
+                             {"tracking.optimizer": "lm", "tracking.iters": "20", "tracking.strided_iters": "0",
+                              "tracking.reselect_every": "1", "noise.map_means_cm": "1.0", "noise.depth_cm": "1.0"})
+    fields = ("cbknn.params.alpha", "cbknn.params.k0", "cbknn.lambda_color_keyframe")
+    window = hg.record(frames, config, intrinsics)
+    result = hg.hypergradient(window, config, intrinsics, fields, objective="ate", adjoint="implicit")
+    for name in fields:
+        value = float(differentiable_entry(config, name).value)
+        exact = value * result.gradient[name]
+        for step in (0.05, 0.2):
+            ends = [hg.objective_value(hg.record(frames, replace_path(config, name, value * (1 + s * step)),
+                                                 intrinsics), config, intrinsics, "ate") for s in (1, -1)]
+            runs = (ends[0] - ends[1]) / (2 * step)
+            assert np.sign(exact) == np.sign(runs), (name, step, exact, runs)
