@@ -45,10 +45,10 @@ def _run_differences(frames, config, intrinsics, objective):
     return _differences[objective]
 
 
-def _differences_of(frames, config, intrinsics, objective, step=0.05):
+def _differences_of(frames, config, intrinsics, objective, step=0.05, fields=FIELDS):
     """{field: v * (J(v + h) - J(v - h)) / (2 h)} over whole runs, h = step * v (relative sensitivities)."""
     out = {}
-    for name in FIELDS:
+    for name in fields:
         value = float(differentiable_entry(config, name).value)
         ends = [hg.objective_value(hg.record(frames, replace_path(config, name, value * (1 + s * step)), intrinsics),
                                    config, intrinsics, objective) for s in (1, -1)]
@@ -56,8 +56,26 @@ def _differences_of(frames, config, intrinsics, objective, step=0.05):
     return out
 
 
-def _relative(result: hg.Hypergradient, config) -> dict[str, float]:
-    return {name: float(differentiable_entry(config, name).value) * result.gradient[name] for name in FIELDS}
+def _relative(result: hg.Hypergradient, config, fields=FIELDS) -> dict[str, float]:
+    return {name: float(differentiable_entry(config, name).value) * result.gradient[name] for name in fields}
+
+
+# Text overrides of the cpu preset: LM with 20 steps on every pixel (poses are fixed points), and CB-KNN's case of a
+# noisy map (1 cm of fresh map noise and 1 cm of depth noise).
+LM = {"tracking.optimizer": "lm", "tracking.iters": "20", "tracking.strided_iters": "0", "tracking.reselect_every": "1"}
+MAP_NOISE = {"noise.map_means_cm": "1.0", "noise.depth_cm": "1.0"}
+
+
+def _noisy_room(frames: int, downscale: int, overrides: dict[str, str]):
+    """(frames, intrinsics, config): the noisy synthetic room's first ``frames`` at 160x120 / ``downscale``, and the
+    cpu preset at that width with CB-KNN ``paper`` and ``overrides``."""
+    from gsjax.config.text import apply_overrides
+    from gsjax.data import open_sequence
+    from gsjax.slam.presets import preset, with_cbknn_mode
+
+    sequence = open_sequence("synthetic", max_frames=frames, downscale=downscale, sensor_noise=True)
+    config = apply_overrides(with_cbknn_mode(preset("cpu", sequence.intrinsics.width), "paper"), overrides)
+    return [sequence.read_host(i) for i in range(len(sequence))], sequence.intrinsics, config
 
 
 def test_the_unrolled_hypergradient_through_the_whole_window_has_the_sign_and_size_of_whole_runs(setup):
@@ -200,15 +218,10 @@ def test_the_straight_through_kernel_size_keeps_renders_and_follows_the_next_slo
 def room80():
     """The noisy synthetic room at the cpu preset's 80x60 (its strided iterations too), in the same regime: the
     window, and the runs' differences of the residual at 5 % and 20 % steps."""
-    from gsjax.data import open_sequence
-    from gsjax.slam.presets import preset, with_cbknn_mode
-
-    sequence = open_sequence("synthetic", max_frames=FRAMES, downscale=2, sensor_noise=True)
-    frames = [sequence.read_host(i) for i in range(FRAMES)]
-    config = ts.replaced(with_cbknn_mode(preset("cpu", 80), "paper"), SMOOTH)
-    window = hg.record(frames, config, sequence.intrinsics)
-    runs = {step: _differences_of(frames, config, sequence.intrinsics, "residual", step) for step in (0.05, 0.2)}
-    return config, sequence.intrinsics, window, runs
+    frames, intrinsics, config = _noisy_room(FRAMES, 2, {name: str(value) for name, value in SMOOTH.items()})
+    window = hg.record(frames, config, intrinsics)
+    runs = {step: _differences_of(frames, config, intrinsics, "residual", step) for step in (0.05, 0.2)}
+    return config, intrinsics, window, runs
 
 
 @pytest.mark.slow
@@ -247,26 +260,15 @@ def test_at_80x60_the_implicit_hypergradient_of_ate_has_the_sign_of_whole_runs_f
     lambda_color -0.41, lambda_depth +0.25, lambda_color_keyframe +0.16 (window: the same within 0.01) against whole
     runs' -1.87 / +0.54 / +0.18 at 5 % steps and -0.38 / +0.16 / +0.17 at 20 %; the runs' differences for CB-KNN's
     alpha and K0 change sign between the steps (experiments/README.md), so they are not compared."""
-    from gsjax.config.text import apply_overrides
-    from gsjax.data import open_sequence
-    from gsjax.slam.presets import preset, with_cbknn_mode
-
-    sequence = open_sequence("synthetic", max_frames=8, downscale=2, sensor_noise=True)
-    frames, intrinsics = [sequence.read_host(i) for i in range(len(sequence))], sequence.intrinsics
-    config = apply_overrides(with_cbknn_mode(preset("cpu", intrinsics.width), "paper"),
-                             {"tracking.optimizer": "lm", "tracking.iters": "20", "tracking.strided_iters": "0",
-                              "tracking.reselect_every": "1"})
+    frames, intrinsics, config = _noisy_room(8, 2, LM)
     weights = ("tracking.lambda_color", "tracking.lambda_depth", "cbknn.lambda_color_keyframe")
     window = hg.record(frames, config, intrinsics)
-    result = hg.hypergradient(window, config, intrinsics, weights, objective="ate", adjoint="implicit")
-    for name in weights:
-        value = float(differentiable_entry(config, name).value)
-        exact = value * result.gradient[name]
-        for step in (0.05, 0.2):
-            ends = [hg.objective_value(hg.record(frames, replace_path(config, name, value * (1 + s * step)),
-                                                 intrinsics), config, intrinsics, "ate") for s in (1, -1)]
-            runs = (ends[0] - ends[1]) / (2 * step)
-            assert np.sign(exact) == np.sign(runs), (name, step, exact, runs)
+    exact = _relative(hg.hypergradient(window, config, intrinsics, weights, objective="ate", adjoint="implicit"),
+                      config, weights)
+    for step in (0.05, 0.2):
+        runs = _differences_of(frames, config, intrinsics, "ate", step, weights)
+        for name in weights:
+            assert np.sign(exact[name]) == np.sign(runs[name]), (name, step, exact[name], runs[name])
 
 
 @pytest.mark.slow
@@ -281,28 +283,15 @@ def test_with_map_noise_the_window_hypergradient_has_the_sign_of_whole_runs_for_
     -11.6), K0 +2.79 (+0.65 / +0.22), lambda_color -0.21 against +0.07 / +0.02 (the one steady field whose sign
     differs), correlation 0.98 / 0.98. Fields whose runs change sign between the steps (or do not move) are not
     compared: lambda_color and beta at 40x30, alpha and beta at 80x60."""
-    from gsjax.config.text import apply_overrides
-    from gsjax.data import open_sequence
-    from gsjax.slam.presets import preset, with_cbknn_mode
-
-    sequence = open_sequence("synthetic", max_frames=FRAMES, downscale=downscale, sensor_noise=True)
-    frames, intrinsics = [sequence.read_host(i) for i in range(len(sequence))], sequence.intrinsics
-    config = apply_overrides(with_cbknn_mode(preset("cpu", intrinsics.width), "paper"),
-                             {"tracking.iters": "10", "tracking.strided_iters": "0", "tracking.lr_trans": "2e-4",
-                              "tracking.lr_rot": "2e-4", "noise.map_means_cm": "1.0", "noise.depth_cm": "1.0"})
+    frames, intrinsics, config = _noisy_room(FRAMES, downscale, {
+        "tracking.iters": "10", "tracking.strided_iters": "0", "tracking.lr_trans": "2e-4", "tracking.lr_rot": "2e-4",
+        **MAP_NOISE})
     fields = FIELDS + ("cbknn.params.alpha", "cbknn.params.k0", "cbknn.params.beta")
     window = hg.record(frames, config, intrinsics)
     result = hg.hypergradient(window, config, intrinsics, fields, objective="residual", truncation="window")
-    exact = np.array([float(differentiable_entry(config, n).value) * result.gradient[n] for n in fields])
-    runs = {}
-    for step in (0.05, 0.2):
-        differences = []
-        for name in fields:
-            value = float(differentiable_entry(config, name).value)
-            ends = [hg.objective_value(hg.record(frames, replace_path(config, name, value * (1 + s * step)),
-                                                 intrinsics), config, intrinsics, "residual") for s in (1, -1)]
-            differences.append((ends[0] - ends[1]) / (2 * step))
-        runs[step] = np.array(differences)
+    exact = np.array(list(_relative(result, config, fields).values()))
+    runs = {step: np.array(list(_differences_of(frames, config, intrinsics, "residual", step, fields).values()))
+            for step in (0.05, 0.2)}
     # Where the runs' differences are a derivative: the same sign at both steps, and not zero.
     steady = (np.sign(runs[0.05]) == np.sign(runs[0.2])) & (np.minimum(abs(runs[0.05]), abs(runs[0.2])) > 1e-6)
     agree = np.sign(exact) == np.sign(runs[0.2])
@@ -320,23 +309,12 @@ def test_at_80x60_with_map_noise_the_implicit_hypergradient_of_ate_has_the_sign_
     `experiments/hypergrad_check.py --regime lm+noise`), where whole runs' ATE responds to CB-KNN. Measured (relative,
     x 1e3): alpha +0.138 against the runs' +1.34 / +0.110 at 5 % / 20 % steps, K0 +0.172 against +1.09 / +1.81,
     lambda_color_keyframe +0.319 against +0.268 / +0.342 (beta's sign differs: +0.067 against -2.6 / -0.16)."""
-    from gsjax.config.text import apply_overrides
-    from gsjax.data import open_sequence
-    from gsjax.slam.presets import preset, with_cbknn_mode
-
-    sequence = open_sequence("synthetic", max_frames=8, downscale=2, sensor_noise=True)
-    frames, intrinsics = [sequence.read_host(i) for i in range(len(sequence))], sequence.intrinsics
-    config = apply_overrides(with_cbknn_mode(preset("cpu", intrinsics.width), "paper"),
-                             {"tracking.optimizer": "lm", "tracking.iters": "20", "tracking.strided_iters": "0",
-                              "tracking.reselect_every": "1", "noise.map_means_cm": "1.0", "noise.depth_cm": "1.0"})
+    frames, intrinsics, config = _noisy_room(8, 2, {**LM, **MAP_NOISE})
     fields = ("cbknn.params.alpha", "cbknn.params.k0", "cbknn.lambda_color_keyframe")
     window = hg.record(frames, config, intrinsics)
-    result = hg.hypergradient(window, config, intrinsics, fields, objective="ate", adjoint="implicit")
-    for name in fields:
-        value = float(differentiable_entry(config, name).value)
-        exact = value * result.gradient[name]
-        for step in (0.05, 0.2):
-            ends = [hg.objective_value(hg.record(frames, replace_path(config, name, value * (1 + s * step)),
-                                                 intrinsics), config, intrinsics, "ate") for s in (1, -1)]
-            runs = (ends[0] - ends[1]) / (2 * step)
-            assert np.sign(exact) == np.sign(runs), (name, step, exact, runs)
+    exact = _relative(hg.hypergradient(window, config, intrinsics, fields, objective="ate", adjoint="implicit"),
+                      config, fields)
+    for step in (0.05, 0.2):
+        runs = _differences_of(frames, config, intrinsics, "ate", step, fields)
+        for name in fields:
+            assert np.sign(exact[name]) == np.sign(runs[name]), (name, step, exact[name], runs[name])
