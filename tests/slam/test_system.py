@@ -125,9 +125,11 @@ def test_vmap_over_configs_and_states_equals_the_separate_runs(mode):
     separate = [run_first_chunk(mode, 0), run_first_chunk(mode, 1, SWEPT)]
     for i, expected in enumerate(separate):
         # Measured: up to 1e-4 absolute on tracking losses of ~200 (float32 sums reduced in another order), 5e-6 on
-        # logit opacities and 7e-5 on 3 of 7200 colours (the SSIM's matrix products reduce in another order under
-        # vmap, and Adam's steps of eps 1e-15 carry a near-zero gradient's rounding); integers and masks equal.
-        assert_trees_close(jax.tree_util.tree_map(lambda x: x[i], batched), expected, rtol=1e-5, atol=1e-4)
+        # logit opacities and 7e-5 to 1.2e-4 on 1-3 of 7200 colours (the SSIM's matrix products reduce in another
+        # order under vmap, and Adam with eps 1e-15 turns a near-zero gradient's rounding into a step of up to its
+        # rate: a few entries may differ by up to one colour step, mapping.lr_rgb); integers and masks equal.
+        assert_trees_close(jax.tree_util.tree_map(lambda x: x[i], batched), expected, rtol=1e-5, atol=1e-4, few=4,
+                           few_atol=dict(SWEPT)["mapping.lr_rgb"])
     # The comparison is not vacuous: the swept fields change the run (with the same seed).
     assert trees_differ(run_first_chunk(mode, 0, SWEPT), run_first_chunk(mode, 0))
 
