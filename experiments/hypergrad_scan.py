@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from hypergrad_check import NOISE
 
 from gsjax.config.paths import differentiable_entry, replace_path
 from gsjax.config.text import apply_overrides
@@ -43,7 +44,7 @@ VARIANTS = {
     "contributors chosen at every iteration": {"tracking.reselect_every": "1", "mapping.reselect_every": "1"},
     "mapping 10 iterations": {"mapping.iters": "10"},
     "mapping 20 iterations": {"mapping.iters": "20"},
-    "1 cm map noise": {"noise.map_means_cm": "1.0", "noise.depth_cm": "1.0"},
+    "1 cm map noise": NOISE,
 }
 TINY = (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4, 1e-3)
 STEPS = (0.05, 0.1, 0.2)
@@ -76,25 +77,24 @@ def main() -> None:
         rest = {k: v for k, v in overrides.items() if k != "cbknn.mode"}
         return apply_overrides(with_cbknn_mode(preset("cpu", intrinsics.width), mode), {**SMOOTH, **rest})
 
-    def run(config, value: float, s: float) -> dict:
+    def run(config, value: float, s: float):
+        """(the run's objectives and discrete decisions, its window, its config) at ``value (1 + s)``."""
         moved = replace_path(config, key, value * (1 + s))
         window = hypergrad.record(frames, moved, intrinsics)
         out = window.outputs
-        return {"residual": hypergrad.objective_value(window, moved, intrinsics, "residual"),
-                "ate": hypergrad.objective_value(window, moved, intrinsics, "ate"),
-                "added": np.asarray(out.added).tolist(), "keyframe": np.asarray(out.keyframe).astype(int).tolist(),
-                "tracking_iters": np.asarray(out.tracking_iters).tolist(), "window": window, "config": moved}
+        summary = {"residual": hypergrad.objective_value(window, moved, intrinsics, "residual"),
+                   "ate": hypergrad.objective_value(window, moved, intrinsics, "ate"),
+                   "added": np.asarray(out.added).tolist(), "keyframe": np.asarray(out.keyframe).astype(int).tolist(),
+                   "tracking_iters": np.asarray(out.tracking_iters).tolist()}
+        return summary, window, moved
 
-    def derivatives(record: dict, value: float, s: float) -> dict:
+    def derivatives(window, config, value: float, s: float) -> dict:
         out = {}
         for truncation in ("window", "frame"):
-            result = hypergrad.hypergradient(record["window"], record["config"], intrinsics, (key,),
-                                             objective="residual", truncation=truncation)
+            result = hypergrad.hypergradient(window, config, intrinsics, (key,), objective="residual",
+                                             truncation=truncation)
             out[truncation] = value * (1 + s) * result.gradient[key]  # v dJ/dv at v (1 + s), as the runs' differences
         return out
-
-    def plain(record: dict) -> dict:
-        return {k: v for k, v in record.items() if k not in ("window", "config")}
 
     if args.map_step:
         steps = results.setdefault("map_step", {})
@@ -115,16 +115,15 @@ def main() -> None:
             wanted = i % args.every == 0 or i == len(grid) - 1
             if name in scan["runs"] and (not wanted or name in scan["derivatives"]):
                 continue
-            record = run(config, value, float(s))
-            scan["runs"][name] = plain(record)
+            scan["runs"][name], window, moved = run(config, value, float(s))
             if wanted:
-                scan["derivatives"][name] = derivatives(record, value, float(s))
+                scan["derivatives"][name] = derivatives(window, moved, value, float(s))
             print(f"s {name}: {scan['runs'][name]['residual']:.7f} {scan['derivatives'].get(name, '')} "
                   f"({time.time() - start:.0f} s)", flush=True)
             save()
         for h in TINY:
             if f"{h:g}" not in scan["tiny"]:
-                ends = [run(config, value, sign * h)["residual"] for sign in (1, -1)]
+                ends = [run(config, value, sign * h)[0]["residual"] for sign in (1, -1)]
                 scan["tiny"][f"{h:g}"] = (ends[0] - ends[1]) / (2 * h)
                 save()
         print(scan_table(scan))
@@ -135,11 +134,11 @@ def main() -> None:
             continue
         config = config_of(overrides)
         value = float(differentiable_entry(config, key).value)
-        base = run(config, value, 0.0)
-        ends = {s: [run(config, value, sign * s)["residual"] for sign in (1, -1)] for s in STEPS}
+        base, window, _ = run(config, value, 0.0)
+        ends = {s: [run(config, value, sign * s)[0]["residual"] for sign in (1, -1)] for s in STEPS}
         variants[name] = {"overrides": overrides, "residual": base["residual"],
                           "runs": {f"{s:g}": (a - b) / (2 * s) for s, (a, b) in ends.items()},
-                          **derivatives(base, value, 0.0)}
+                          **derivatives(window, config, value, 0.0)}
         print(name, variants[name], f"({time.time() - start:.0f} s)", flush=True)
         save()
     print(variants_table(variants))
